@@ -1,0 +1,1 @@
+"""The physics of the rig (numpy/scipy only, no ROS, no files, no wall-clock time)."""

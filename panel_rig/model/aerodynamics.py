@@ -1,0 +1,136 @@
+"""2-D unsteady vortex lattice of the airfoil + panel and its wake (Tang & Dowell 2002, Eqs. 1-5).
+
+Lengths are in units of the element length dx; vortex strengths are stored as gamma_j = Gamma_j / dx
+(m/s), so that the discrete aerodynamic system (Eq. 3)
+
+    A gamma^{n+1} + B gamma^n = w^{n+1}
+
+holds with pure-number matrices A, B for any airspeed; U enters only through the aerodynamic step
+dt_a = dx / U. Rows 0..km-1 are the downwash conditions at the 3/4-chord collocation points with the
+kernel K_ij = 1 / (2 pi (x_i - xi_j)) (Eqs. 1-2); row km is Kelvin's theorem (the first wake vortex
+carries the change of bound circulation); the remaining rows convect the wake one element per step,
+the last vortex keeping a fraction (the relaxation factor, Hall 1994) of its previous strength.
+
+Sign convention: gamma > 0 gives lift (upward pressure difference); the "downwash" is
+w = -(dw_s/dt + U dw_s/dx) for a surface displacement w_s positive up, so a nose-up plate has w > 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class VortexLattice:
+    """Geometry and matrices of the discrete vortex lattice (Eqs. 1-3)."""
+
+    n_body: int  # km: elements on airfoil + panel
+    n_wake: int  # kmm - km
+    dx_m: float  # element length
+    x_vortex_m: np.ndarray  # (kmm,) vortex positions (1/4 of each element), m from the leading edge
+    x_colloc_m: np.ndarray  # (km,) collocation points (3/4 of each body element), m
+    A: np.ndarray  # (kmm, kmm)
+    B: np.ndarray  # (kmm, kmm)
+
+    @property
+    def size(self) -> int:
+        """kmm: total number of vortices."""
+        return self.n_body + self.n_wake
+
+    def static_inverse(self) -> np.ndarray:
+        """(A + B)^{-1} restricted to the body downwash columns, (kmm, km): the quasi-steady solution."""
+        return np.linalg.solve(self.A + self.B, np.eye(self.size)[:, : self.n_body])
+
+
+def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float) -> VortexLattice:
+    """Assemble A and B of Eq. (3) for equal elements dx = chord / n_body on body and wake."""
+    if n_body < 1 or n_wake < 2:
+        raise ValueError("need at least 1 body element and 2 wake elements")
+    dx = chord_m / n_body
+    n = n_body + n_wake
+    xv = np.arange(n) + 0.25  # in dx units
+    xc = np.arange(n_body) + 0.75
+    A = np.zeros((n, n))
+    B = np.zeros((n, n))
+    A[:n_body, :] = 1.0 / (2.0 * np.pi * (xc[:, None] - xv[None, :]))  # Eq. (2), lengths in dx
+    k = n_body  # Kelvin: gamma_w1^{n+1} + sum gamma_b^{n+1} - sum gamma_b^n = 0
+    A[k, :n_body] = 1.0
+    A[k, k] = 1.0
+    B[k, :n_body] = -1.0
+    for j in range(n_body + 1, n):  # convection: gamma_j^{n+1} = gamma_{j-1}^n
+        A[j, j] = 1.0
+        B[j, j - 1] = -1.0
+    B[n - 1, n - 1] = -relaxation  # last vortex: gamma^{n+1} = gamma_{n-2}^n + relaxation * gamma^n
+    return VortexLattice(n_body, n_wake, dx, xv * dx, xc * dx, A, B)
+
+
+def lattice_for(cfg) -> VortexLattice:
+    """The lattice of a PanelConfig (airfoil + panel, km elements, its wake and relaxation)."""
+    return build_lattice(cfg.chord_m, cfg.n_elements, cfg.n_wake, cfg.wake_relaxation)
+
+
+def cumulative_sum_matrix(n: int) -> np.ndarray:
+    """S with (S g)_j = sum_{i <= j} g_i: the potential jump at element j (Eq. 4)."""
+    return np.tril(np.ones((n, n)))
+
+
+def pressure_jump(lat: VortexLattice, airspeed_mps: float, rho_kgpm3: float,
+                  gamma_new: np.ndarray, gamma_old: np.ndarray, dt_s: float) -> np.ndarray:
+    """Delta p on each body element over one step (Eq. 4), Pa: rho [U gamma_mid + dx sum_{i<=j} dgamma_i/dt]."""
+    nb = lat.n_body
+    mid = 0.5 * (gamma_new[..., :nb] + gamma_old[..., :nb])
+    rate = np.cumsum(gamma_new[..., :nb] - gamma_old[..., :nb], axis=-1) / dt_s
+    return rho_kgpm3 * (airspeed_mps * mid + lat.dx_m * rate)
+
+
+def steady_lift_coefficient(lat: VortexLattice, alpha_rad: float) -> float:
+    """C_l of the flat plate (whole body) at incidence alpha from the steady solution (A + B) gamma = w."""
+    w = np.zeros(lat.size)
+    w[: lat.n_body] = alpha_rad  # w / U for a nose-up plate
+    gamma = np.linalg.solve(lat.A + lat.B, w)  # gamma / U
+    chord = lat.n_body * lat.dx_m
+    return 2.0 * float(np.sum(gamma[: lat.n_body])) * lat.dx_m / chord
+
+
+def indicial_lift(lat: VortexLattice, n_steps: int) -> np.ndarray:
+    """Lift build-up C_l(step) / (2 pi alpha) after a step change of incidence at step 0 (Wagner problem).
+
+    The plate is still; the downwash jumps to U alpha at every collocation point. Step n covers
+    s = 2 U t / c in [2n/km, 2(n+1)/km]; the value returned is the mid-step pressure lift.
+    """
+    nb = lat.n_body
+    w = np.zeros(lat.size)
+    w[:nb] = 1.0
+    Ainv = np.linalg.inv(lat.A)
+    g_old = np.zeros(lat.size)
+    out = np.empty(n_steps)
+    chord = nb * lat.dx_m
+    for n in range(n_steps):
+        g_new = Ainv @ (w - lat.B @ g_old)
+        dp = pressure_jump(lat, 1.0, 1.0, g_new, g_old, lat.dx_m)  # U = 1, rho = 1, dt = dx / U
+        out[n] = np.sum(dp) * lat.dx_m / (0.5 * chord) / (2 * np.pi)
+        g_old = g_new
+    return out
+
+
+def harmonic_lift(lat: VortexLattice, k_reduced: float, w_shape: np.ndarray, w_slope: np.ndarray) -> complex:
+    """Complex lift per unit amplitude, L / (rho U^2 b), of a harmonic surface motion.
+
+    The surface displacement is w_s(x, t) = Re[(w_shape(x)) e^{i omega t}] with w_shape in units of the
+    semi-chord b at the collocation points and w_slope its x-derivative there; k = omega b / U.
+    Solved in the frequency domain of the discrete system: (z A + B) gamma = z w with z = e^{i omega dt_a}.
+    """
+    nb = lat.n_body
+    b = 0.5 * nb * lat.dx_m
+    theta = k_reduced * lat.dx_m / b  # omega dt_a
+    z = np.exp(1j * theta)
+    # downwash / U = -(i k w_shape + b dw_s/dx) with lengths in b; w_slope is dimensionless
+    w = np.zeros(lat.size, dtype=complex)
+    w[:nb] = -(1j * k_reduced * w_shape + w_slope)
+    gamma = np.linalg.solve(z * lat.A + lat.B, z * w)  # gamma / U at step n+1 relative to e^{i omega t}
+    g_new, g_old = gamma, gamma / z
+    dp = (0.5 * (g_new[:nb] + g_old[:nb]) + np.cumsum(g_new[:nb] - g_old[:nb]))  # Eq. (4), / (rho U^2)
+    # evaluate at mid-step: the pair (new, old) straddles t + dt_a / 2
+    return complex(np.sum(dp) * lat.dx_m / b * np.exp(0.5j * theta))
