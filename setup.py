@@ -16,7 +16,7 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
     ],
     python_requires=">=3.10",
-    install_requires=["numpy>=1.24", "scipy>=1.10", "pyyaml>=6", "matplotlib>=3.7"],
+    install_requires=["numpy>=1.24", "scipy>=1.10", "pyyaml>=6", "matplotlib>=3.7", "numba>=0.60"],
     extras_require={
         # ROS 2 Jazzy from PyPI, for machines without a ROS install.
         "ros": ["ros-rclpy==7.1.6", "ros-common-interfaces==5.3.6", "ros-rmw-fastrtps-cpp==8.4.3"],
@@ -32,6 +32,8 @@ setup(
     entry_points={
         "console_scripts": [
             "panel-rig = panel_rig.cli:main",
+            "rig_node = panel_rig.ros.node:main",
+            "rig_operator = panel_rig.ros.operator:main",
         ],
     },
 )

@@ -1,0 +1,224 @@
+"""Compiled (numba) time-step kernel of the nonlinear aeroelastic equations.
+
+Unknowns per step: the new modal velocity x = q_dot^{n+1}; everything else follows. The scheme is the
+trapezoidal / implicit-midpoint rule on
+
+    (M + Ma + s_M dM(q*)) q_dd + (C + U Ca) q_dot + (K + U^2 Ka) q + s_K F_K(q) + s_M F_M(q, q_dot)
+        - U Qxi xi = f_tip L phi(1)                                             (Eqs. 21, 25)
+    d xi/dt = (U/dx) Lam xi - Gv q_dd - U Gs q_dot
+
+with every term at the midpoint t + dt/2 except the nonlinear mass, taken at q* = q(t + dt/2)
+('implicit') or q* = q(t) ('paper': Eq. 24 as printed). The aero blocks of Lam are 1x1 or 2x2
+([[a, b], [-b, a]]), so the aerodynamic solve is closed-form and the airspeed may change every step.
+The 3x3 structural system is solved by a chord-Newton iteration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+OK, NON_FINITE, OVER_BOUND = 0, 1, 2
+MAX_ITER = 30
+
+
+@njit(cache=True)
+def _nl_force(q, v, K_nl, P_nl, k_scale, m_scale, use_k, use_m, f):
+    """f += s_K (D/L) K_inrs q_n q_r q_s + s_M F_M(q, v) (Eq. 22)."""
+    n = q.shape[0]
+    if use_k:
+        for i in range(n):
+            acc = 0.0
+            for a in range(n):
+                for b in range(n):
+                    qab = q[a] * q[b]
+                    for c in range(n):
+                        acc += K_nl[i, a, b, c] * qab * q[c]
+            f[i] += k_scale * acc
+    if use_m:
+        # F_M,i = m [ sum_acd P_aicd (v_a q_c + q_a v_c) v_d - 1/2 sum_bcd (P_ibcd + P_cbid) v_b v_d q_c ]
+        for i in range(n):
+            acc = 0.0
+            for a in range(n):
+                for c in range(n):
+                    for d in range(n):
+                        acc += P_nl[a, i, c, d] * (v[a] * q[c] + q[a] * v[c]) * v[d]
+                        acc -= 0.5 * (P_nl[i, a, c, d] + P_nl[c, a, i, d]) * v[a] * v[d] * q[c]
+            f[i] += m_scale * acc
+
+
+@njit(cache=True)
+def _nl_mass(q, P_nl, m_scale, out):
+    """out += dM(q)_bd = m_p L^3 P_abcd q_a q_c."""
+    n = q.shape[0]
+    for b in range(n):
+        for d in range(n):
+            acc = 0.0
+            for a in range(n):
+                for c in range(n):
+                    acc += P_nl[a, b, c, d] * q[a] * q[c]
+            out[b, d] += m_scale * acc
+    return out
+
+
+@njit(cache=True)
+def _solve_inplace(J, rhs):
+    """Gaussian elimination with partial pivoting of a small dense system; rhs becomes the solution."""
+    n = rhs.shape[0]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(J[i, k]) > abs(J[p, k]):
+                p = i
+        if p != k:
+            for j in range(n):
+                J[k, j], J[p, j] = J[p, j], J[k, j]
+            rhs[k], rhs[p] = rhs[p], rhs[k]
+        for i in range(k + 1, n):
+            f = J[i, k] / J[k, k]
+            for j in range(k, n):
+                J[i, j] -= f * J[k, j]
+            rhs[i] -= f * rhs[k]
+    for k in range(n - 1, -1, -1):
+        acc = rhs[k]
+        for j in range(k + 1, n):
+            acc -= J[k, j] * rhs[j]
+        rhs[k] = acc / J[k, k]
+
+
+@njit(cache=True)
+def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
+    """out = (I - h Lam)^{-1} vec (inverse=True) or (I + h Lam) vec (inverse=False), Lam block-diagonal."""
+    for k in range(blk_off.shape[0]):
+        o = blk_off[k]
+        ak, bk = h * a[k], h * b[k]
+        if blk_len[k] == 1:
+            if inverse:
+                out[o] = vec[o] / (1.0 - ak)
+            else:
+                out[o] = (1.0 + ak) * vec[o]
+        else:
+            x0, x1 = vec[o], vec[o + 1]
+            if inverse:  # [[1-a, -b], [b, 1-a]]^{-1} = [[1-a, b], [-b, 1-a]] / det
+                det = (1.0 - ak) ** 2 + bk**2
+                out[o] = ((1.0 - ak) * x0 + bk * x1) / det
+                out[o + 1] = (-bk * x0 + (1.0 - ak) * x1) / det
+            else:
+                out[o] = (1.0 + ak) * x0 + bk * x1
+                out[o + 1] = -bk * x0 + (1.0 + ak) * x1
+
+
+@njit(cache=True)
+def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a, lam_b,
+          K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_at_start, f_vec, tip_vec, tip_bound, tol,
+          tip_out):
+    """Advance (q, v, xi) in place over len(U_seq) steps; tip w/L of each step into tip_out.
+
+    Returns (status, steps_done): status OK, NON_FINITE or OVER_BOUND (state left at the last good step).
+    """
+    n = q.shape[0]
+    r = xi.shape[0]
+    h = 0.5 * dt
+    tmp_r = np.zeros(r)
+    c0 = np.zeros(r)
+    W = np.zeros((r, n))
+    col = np.zeros(r)
+    Cu = np.zeros((n, n))
+    Ku = np.zeros((n, n))
+    QW = np.zeros((n, n))
+    J_lin = np.zeros((n, n))
+    Mt = np.zeros((n, n))
+    J = np.zeros((n, n))
+    res = np.zeros(n)
+    x = np.zeros(n)
+    vm = np.zeros(n)
+    qm = np.zeros(n)
+    xi_part = np.zeros(n)
+    la = np.zeros(lam_a.shape[0])
+    lb = np.zeros(lam_a.shape[0])
+    U_prev = -1.0
+    for step in range(U_seq.shape[0]):
+        U = U_seq[step]
+        la[:] = lam_a * (U / dx)
+        lb[:] = lam_b * (U / dx)
+        if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
+            for j in range(n):
+                for k in range(r):
+                    tmp_r[k] = Gv[k, j] + U * h * Gs[k, j]
+                _block_apply(blk_off, blk_len, la, lb, tmp_r, col, True, h)
+                for k in range(r):
+                    W[k, j] = col[k]
+            for i in range(n):
+                for j in range(n):
+                    Cu[i, j] = C[i, j] + U * Ca[i, j]
+                    Ku[i, j] = K[i, j] + U * U * Ka[i, j]
+                    acc = 0.0
+                    for k in range(r):
+                        acc += Qxi[i, k] * W[k, j]
+                    QW[i, j] = 0.5 * U * acc
+                    J_lin[i, j] = 0.5 * Cu[i, j] + 0.5 * h * Ku[i, j] + QW[i, j]
+            U_prev = U
+        # c0 = (I-hL)^{-1}[(I+hL) xi + (Gv - U h Gs) v]; xi' = c0 - W x
+        _block_apply(blk_off, blk_len, la, lb, xi, tmp_r, False, h)
+        for k in range(r):
+            acc = tmp_r[k]
+            for j in range(n):
+                acc += (Gv[k, j] - U * h * Gs[k, j]) * v[j]
+            tmp_r[k] = acc
+        _block_apply(blk_off, blk_len, la, lb, tmp_r, c0, True, h)
+        for i in range(n):
+            acc = 0.0
+            for k in range(r):
+                acc += Qxi[i, k] * (xi[k] + c0[k])
+            xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
+        for i in range(n):
+            x[i] = v[i]
+        for it in range(MAX_ITER):
+            for i in range(n):
+                vm[i] = 0.5 * (x[i] + v[i])
+                qm[i] = q[i] + h * vm[i]
+            Mt[:, :] = M0
+            if use_m:
+                _nl_mass(q if mass_at_start else qm, P_nl, m_scale, Mt)
+            for i in range(n):
+                acc = -xi_part[i]
+                for j in range(n):
+                    acc += Mt[i, j] * (x[j] - v[j]) / dt + Cu[i, j] * vm[j] + Ku[i, j] * qm[j] + QW[i, j] * x[j]
+                res[i] = acc
+            if use_k or use_m:
+                _nl_force(qm, vm, K_nl, P_nl, k_scale, m_scale, use_k, use_m, res)
+            for i in range(n):
+                for j in range(n):
+                    J[i, j] = Mt[i, j] / dt + J_lin[i, j]
+            _solve_inplace(J, res)
+            scale = 1e-12
+            big = 0.0
+            for i in range(n):
+                x[i] -= res[i]
+                scale = max(scale, abs(x[i]))
+                big = max(big, abs(res[i]))
+            if big <= tol * scale:
+                break
+        tip = 0.0
+        finite = True
+        for j in range(n):
+            qn = q[j] + h * (x[j] + v[j])
+            tip += tip_vec[j] * qn
+            finite = finite and np.isfinite(qn) and np.isfinite(x[j])
+        for k in range(r):
+            acc = c0[k]
+            for j in range(n):
+                acc -= W[k, j] * x[j]
+            tmp_r[k] = acc
+            finite = finite and np.isfinite(acc)
+        if not finite:
+            return NON_FINITE, step
+        if abs(tip) > tip_bound:
+            return OVER_BOUND, step
+        for j in range(n):
+            q[j] += h * (x[j] + v[j])
+            v[j] = x[j]
+        for k in range(r):
+            xi[k] = tmp_r[k]
+        tip_out[step] = tip
+    return OK, U_seq.shape[0]

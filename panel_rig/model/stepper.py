@@ -1,0 +1,190 @@
+"""The nonlinear aeroelastic stepper: the one object the rig, the sweeps and the paper report run on.
+
+State: modal coordinates q (w/L), velocities q_dot (1/s) and the aerodynamic ROM coordinates xi.
+Each call advances a fixed physical time step dt (default 1/2048 s, independent of the vortex
+spacing) with the airspeed and the trailing-edge force as inputs of that step. All aero-sized algebra
+is done once at construction, in convective form, and only scaled by U per step (see kernel.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from panel_rig.config import PanelConfig
+from panel_rig.model import kernel
+from panel_rig.model.aeroelastic import AeroelasticModel
+from panel_rig.model.structure import mode_shapes
+
+VARIANTS = {  # name -> (stiffness nonlinearity F_K, inertia nonlinearity dM and F_M)
+    "full": (True, True),
+    "stiffness": (True, False),
+    "inertia": (False, True),
+    "linear": (False, False),
+}
+AERO = ("rom", "full", "none")
+SCHEMES = ("implicit", "paper")
+NEWTON_TOL = 1e-12
+
+
+class DivergenceError(RuntimeError):
+    """The march left the physical range (non-finite state or |tip w/L| over the bound)."""
+
+    def __init__(self, reason: str, time_s: float):
+        super().__init__(f"model diverged at t = {time_s:.4f} s: {reason}")
+        self.reason = reason
+        self.time_s = time_s
+
+
+@dataclass(frozen=True)
+class StepperMatrices:
+    """Constant arrays handed to the kernel (all SI, see kernel.py for the equations)."""
+
+    M0: np.ndarray
+    Ma: np.ndarray
+    C: np.ndarray
+    Ca: np.ndarray
+    K: np.ndarray
+    Ka: np.ndarray
+    Qxi: np.ndarray
+    Gv: np.ndarray
+    Gs: np.ndarray
+    blk_off: np.ndarray
+    blk_len: np.ndarray
+    lam_a: np.ndarray
+    lam_b: np.ndarray
+    dx_m: float
+
+
+def _blocks(Lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets, sizes and (a, b) of the 1x1 / 2x2 blocks of a block-diagonal Lam."""
+    off, size, a, b = [], [], [], []
+    k, r = 0, Lam.shape[0]
+    while k < r:
+        pair = k + 1 < r and (Lam[k, k + 1] != 0.0 or Lam[k + 1, k] != 0.0)
+        off.append(k)
+        size.append(2 if pair else 1)
+        a.append(Lam[k, k])
+        b.append(Lam[k, k + 1] if pair else 0.0)
+        k += 2 if pair else 1
+    return (np.array(off, dtype=np.int64), np.array(size, dtype=np.int64),
+            np.array(a, dtype=float), np.array(b, dtype=float))
+
+
+def stepper_matrices(model: AeroelasticModel, aero: str) -> StepperMatrices:
+    """Assemble the kernel's constant arrays for aero 'rom' (Ra modes), 'full' (all modes) or 'none'."""
+    s = model.structure
+    n = s.n_modes
+    M = s.modal_mass_kg * np.eye(n)
+    if aero == "none":
+        z = np.zeros((n, n))
+        e = np.zeros((0, n))
+        return StepperMatrices(M, z, np.diag(s.modal_damping_kgps), z, np.diag(s.modal_stiffness_npm), z,
+                               np.zeros((n, 0)), e, e, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                               np.zeros(0), np.zeros(0), model.lattice.dx_m)
+    ca = model.continuous(model.cfg.rom_modes if aero == "rom" else None)
+    off, size, a, b = _blocks(ca.Lam)
+    return StepperMatrices(M + ca.Ma, ca.Ma, np.diag(s.modal_damping_kgps), ca.Ca, np.diag(s.modal_stiffness_npm),
+                           ca.Ka, ca.Qxi, ca.Gv, ca.Gs, off, size, a, b, ca.dx_m)
+
+
+class Stepper:
+    """Advance the panel by fixed steps; airspeed (m/s) and tip force (N per metre span) per step."""
+
+    def __init__(self, cfg: PanelConfig, variant: str = "full", aero: str = "rom", scheme: str = "implicit",
+                 model: AeroelasticModel | None = None, dt_s: float | None = None):
+        if variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {tuple(VARIANTS)}, got {variant!r}")
+        if aero not in AERO:
+            raise ValueError(f"aero must be one of {AERO}, got {aero!r}")
+        if scheme not in SCHEMES:
+            raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
+        self.cfg = cfg
+        self.model = model if model is not None else AeroelasticModel(cfg)
+        self.variant, self.aero, self.scheme = variant, aero, scheme
+        self.dt_s = float(dt_s if dt_s is not None else cfg.dt_s)
+        self.mats = stepper_matrices(self.model, aero)
+        s = self.model.structure
+        self._use_k, self._use_m = VARIANTS[variant]
+        self._tip_vec = mode_shapes(s.n_modes, np.array([1.0]))[:, 0]
+        self._f_vec = cfg.panel_length_m * self._tip_vec  # generalised force per N/m at the trailing edge
+        self.reset()
+
+    # ---- state ------------------------------------------------------------------------------------
+    def reset(self, q: np.ndarray | None = None, qdot: np.ndarray | None = None) -> None:
+        """Back to rest (or to the given modal state), aero wake at rest, time zero."""
+        n = self.model.structure.n_modes
+        self.q = np.zeros(n) if q is None else np.array(q, dtype=float)
+        self.qdot = np.zeros(n) if qdot is None else np.array(qdot, dtype=float)
+        self.xi = np.zeros(self.mats.Qxi.shape[1])
+        self.time_s = 0.0
+        self.steps = 0
+        self._last = (0.0, np.zeros(n), np.zeros(n), np.zeros_like(self.xi))  # U, q, v, xi before the last step
+
+    def get_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        return self.q.copy(), self.qdot.copy(), self.xi.copy(), self.time_s
+
+    def set_state(self, state: tuple[np.ndarray, np.ndarray, np.ndarray, float]) -> None:
+        q, v, xi, t = state
+        self.q, self.qdot, self.xi, self.time_s = q.copy(), v.copy(), xi.copy(), float(t)
+
+    @property
+    def n_modes(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def tip_w_over_L(self) -> float:
+        """Trailing-edge deflection w/L = sum q_i phi_i(1)."""
+        return float(self._tip_vec @ self.q)
+
+    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
+        """w/L along the panel at x/L."""
+        return self.q @ mode_shapes(self.n_modes, np.asarray(x_over_L, dtype=float))
+
+    @property
+    def aero_force_npm(self) -> np.ndarray:
+        """Generalised aerodynamic force on each mode over the last step (midpoint), N per metre span."""
+        U, q0, v0, xi0 = self._last
+        m = self.mats
+        vm, qm = 0.5 * (self.qdot + v0), 0.5 * (self.q + q0)
+        acc = (self.qdot - v0) / self.dt_s
+        xim = 0.5 * (self.xi + xi0)
+        return -m.Ma @ acc - U * m.Ca @ vm - U * U * m.Ka @ qm + U * m.Qxi @ xim
+
+    # ---- marching ---------------------------------------------------------------------------------
+    def advance(self, n_steps: int, airspeed_mps: float | np.ndarray, tip_force_npm: float | np.ndarray = 0.0
+                ) -> np.ndarray:
+        """Advance n_steps; inputs are scalars or per-step arrays. Returns tip w/L after each step.
+
+        Raises DivergenceError (state kept at the last finite step) if the march leaves the physical range.
+        """
+        U = np.broadcast_to(np.asarray(airspeed_mps, dtype=float), (n_steps,)).copy()
+        F = np.broadcast_to(np.asarray(tip_force_npm, dtype=float), (n_steps,)).copy()
+        if not (np.all(np.isfinite(U)) and np.all(U >= 0) and np.all(np.isfinite(F))):
+            raise ValueError("airspeed must be finite and >= 0, tip force finite")
+        tip = np.empty(n_steps)
+        if n_steps > 1:
+            self._march(U[:-1], F[:-1], tip[:-1])
+        if n_steps > 0:
+            self._last = (float(U[-1]), self.q.copy(), self.qdot.copy(), self.xi.copy())
+            self._march(U[-1:], F[-1:], tip[-1:])
+        return tip
+
+    def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray) -> None:
+        m, s = self.mats, self.model.structure
+        status, done = kernel.march(
+            self.q, self.qdot, self.xi, U, F, self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs,
+            m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg,
+            self._use_k, self._use_m, self.scheme == "paper", self._f_vec, self._tip_vec,
+            self.cfg.max_tip_w_over_L, NEWTON_TOL, tip)
+        self.steps += done
+        self.time_s += done * self.dt_s
+        if status != kernel.OK:
+            reason = "non-finite state" if status == kernel.NON_FINITE else (
+                f"|tip w/L| exceeded {self.cfg.max_tip_w_over_L}")
+            raise DivergenceError(reason, self.time_s)
+
+    def step(self, airspeed_mps: float, tip_force_npm: float = 0.0) -> None:
+        """One physics step dt with these inputs."""
+        self.advance(1, airspeed_mps, tip_force_npm)
