@@ -8,7 +8,8 @@ trapezoidal / implicit-midpoint rule on
     d xi/dt = (U/dx) Lam xi - Gv q_dd - U Gs q_dot
 
 with every term at the midpoint t + dt/2 except the nonlinear mass, taken at q* = q(t + dt/2)
-('implicit') or q* = q(t) ('paper': Eq. 24 as printed). The aero blocks of Lam are 1x1 or 2x2
+('implicit'), at q* = q(t) ('paper': Eq. 24 with dM(q^t)), or at q(t) and multiplying only the new
+velocity ('paper_literal': [D2 + dM] z^{t+1} + D1 z^t read literally, which adds dM(q) q_dot / dt). The aero blocks of Lam are 1x1 or 2x2
 ([[a, b], [-b, a]]), so the aerodynamic solve is closed-form and the airspeed may change every step.
 The 3x3 structural system is solved by a chord-Newton iteration.
 """
@@ -19,6 +20,7 @@ import numpy as np
 from numba import njit
 
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
+MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
 
 
@@ -110,7 +112,7 @@ def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
 
 @njit(cache=True)
 def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a, lam_b,
-          K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_at_start, f_vec, tip_vec, tip_bound, tol,
+          K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
           tip_out):
     """Advance (q, v, xi) in place over len(U_seq) steps; tip w/L of each step into tip_out.
 
@@ -179,11 +181,13 @@ def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off
                 qm[i] = q[i] + h * vm[i]
             Mt[:, :] = M0
             if use_m:
-                _nl_mass(q if mass_at_start else qm, P_nl, m_scale, Mt)
+                _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)
             for i in range(n):
                 acc = -xi_part[i]
                 for j in range(n):
                     acc += Mt[i, j] * (x[j] - v[j]) / dt + Cu[i, j] * vm[j] + Ku[i, j] * qm[j] + QW[i, j] * x[j]
+                    if mass_mode == MASS_LITERAL:  # [D2 + dM] z^{t+1} + D1 z^t: dM multiplies the new state only
+                        acc += (Mt[i, j] - M0[i, j]) * v[j] / dt
                 res[i] = acc
             if use_k or use_m:
                 _nl_force(qm, vm, K_nl, P_nl, k_scale, m_scale, use_k, use_m, res)

@@ -24,7 +24,7 @@ VARIANTS = {  # name -> (stiffness nonlinearity F_K, inertia nonlinearity dM and
     "linear": (False, False),
 }
 AERO = ("rom", "full", "none")
-SCHEMES = ("implicit", "paper")
+SCHEMES = {"implicit": kernel.MASS_MIDPOINT, "paper": kernel.MASS_AT_START, "paper_literal": kernel.MASS_LITERAL}
 NEWTON_TOL = 1e-12
 
 
@@ -99,7 +99,7 @@ class Stepper:
         if aero not in AERO:
             raise ValueError(f"aero must be one of {AERO}, got {aero!r}")
         if scheme not in SCHEMES:
-            raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
+            raise ValueError(f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}")
         self.cfg = cfg
         self.model = model if model is not None else AeroelasticModel(cfg)
         self.variant, self.aero, self.scheme = variant, aero, scheme
@@ -176,7 +176,7 @@ class Stepper:
         status, done = kernel.march(
             self.q, self.qdot, self.xi, U, F, self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs,
             m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg,
-            self._use_k, self._use_m, self.scheme == "paper", self._f_vec, self._tip_vec,
+            self._use_k, self._use_m, SCHEMES[self.scheme], self._f_vec, self._tip_vec,
             self.cfg.max_tip_w_over_L, NEWTON_TOL, tip)
         self.steps += done
         self.time_s += done * self.dt_s

@@ -1,0 +1,78 @@
+"""The panel-rig CLI and the parameter file: figures as JSON, bad input as exit 2 with one line."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from panel_rig.config import ConfigError, load_config
+
+CLI = [sys.executable, "-m", "panel_rig.cli"]
+
+
+def run(*args):
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
+
+
+def test_modes_json():
+    out = run("modes", "--json")
+    assert out.returncode == 0, out.stderr
+    f = json.loads(out.stdout)["natural_frequencies_hz"]
+    assert f == pytest.approx([4.13, 25.85, 71.67], rel=0.025)
+
+
+@pytest.mark.parametrize("extra", [[], ["--aero", "rom", "--rom-modes", "12"]])
+def test_flutter_json(extra):
+    out = run("flutter", "--json", *extra)
+    assert out.returncode == 0, out.stderr
+    d = json.loads(out.stdout)
+    assert d["flutter_frequency_hz"] == pytest.approx(22.37, rel=0.03)
+    assert d["dominant_mode"] == 2
+    assert 9 < d["flutter_speed_mps"] < 13
+
+
+def test_flutter_plot(tmp_path):
+    png = tmp_path / "fig3.png"
+    out = run("flutter", "--plot", str(png))
+    assert out.returncode == 0, out.stderr
+    assert png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["modes", "--set", "nonsense.key=1"], "nonsense.key"),
+    (["modes", "--set", "panel.thickness_m=-0.001"], "panel.thickness_m"),
+    (["modes", "--set", "aero.elements=0"], "aero.elements"),
+    (["modes", "--params", "/no/such/file.yaml"], "not found"),
+    (["flutter", "--rom-modes", "0", "--aero", "rom"], "rom-modes"),
+    (["modes", "--set", "structure.modes=two"], "structure.modes"),
+])
+def test_bad_input_exits_2_with_one_line(args, needle):
+    out = run(*args)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_malformed_yaml(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("panel_rig:\n  ros__parameters: [1, 2\n")
+    out = run("modes", "--params", str(bad))
+    assert out.returncode == 2 and "malformed YAML" in out.stderr
+
+
+def test_config_validation_names_key(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_text("panel_rig:\n  ros__parameters:\n    air:\n      density_kgpm3: -1.0\n")
+    with pytest.raises(ConfigError, match="air.density_kgpm3"):
+        load_config(p)
+    p.write_text("panel_rig:\n  ros__parameters:\n    aero:\n      wake_relaxation: 1.5\n")
+    with pytest.raises(ConfigError, match="aero.wake_relaxation"):
+        load_config(p)
+
+
+def test_default_file_is_the_paper():
+    c = load_config()
+    assert (c.panel_length_m, c.panel_thickness_m, c.airfoil_length_m) == (0.27, 0.00036, 0.072)
+    assert (c.n_elements, c.n_wake, c.wake_relaxation, c.rom_modes, c.n_modes) == (60, 60, 0.992, 12, 3)

@@ -1,0 +1,62 @@
+"""Linear flutter (Eqs. 24, 25) against the paper's L1 and L2, and the ROM's convergence."""
+
+import numpy as np
+import pytest
+
+from panel_rig.analysis.flutter import eigenvalues, find_flutter
+
+PAPER_UF_MPS, PAPER_FF_HZ = 12.5, 22.37  # L1
+
+
+@pytest.fixture(scope="module")
+def full(model):
+    return find_flutter(model, aero="full")
+
+
+def test_L1_flutter_frequency_and_mode(full):
+    """L1: f_f within 3 % of 22.37 Hz, dominated by the 2nd bending mode."""
+    assert full.frequency_hz == pytest.approx(PAPER_FF_HZ, rel=0.03)
+    assert full.dominant_mode == 2
+
+
+def test_L1_flutter_speed_gap_is_the_documented_one(full):
+    """U_f = 10.42 m/s with this repo's defaults (load at the 1/4 point); the 17 % gap to the paper's 12.5 m/s
+    is explained in docs/validation.md. The 3/4 load point reproduces the paper within 1 %."""
+    assert full.speed_mps == pytest.approx(10.42, rel=0.01)
+
+
+def test_L1_reproduced_with_three_quarter_load_point(cfg):
+    from panel_rig.model.aeroelastic import AeroelasticModel
+
+    fp = find_flutter(AeroelasticModel(cfg.replace(load_point="three_quarter")), aero="full")
+    assert fp.speed_mps == pytest.approx(PAPER_UF_MPS, rel=0.01)
+    assert fp.frequency_hz == pytest.approx(PAPER_FF_HZ, rel=0.01)
+
+
+def test_L2_rom12_virtually_identical(model, full):
+    """L2: ROM Ra = 12 with static correction within 1 % of the full-order flutter speed and frequency."""
+    rom = find_flutter(model, aero="rom", rom_modes=12)
+    assert rom.speed_mps == pytest.approx(full.speed_mps, rel=0.01)
+    assert rom.frequency_hz == pytest.approx(full.frequency_hz, rel=0.01)
+    assert rom.dominant_mode == 2
+
+
+def test_rom_converges_to_full_order_eigenvalues(model):
+    """The structural roots of the ROM approach the full-order ones as Ra grows (U = 10 m/s)."""
+    def struct_roots(e):
+        idx = np.argsort(-e.q_part.max(axis=0) * (e.s.imag > 0))[:3]
+        return np.sort_complex(e.s[idx])
+
+    ref = struct_roots(eigenvalues(model, 10.0, aero="full"))
+    errs = [np.max(np.abs(struct_roots(eigenvalues(model, 10.0, aero="rom", rom_modes=ra)) - ref))
+            for ra in (2, 6, 12, 24, 60)]
+    assert errs[-1] < 0.05 * errs[0]
+    assert errs[3] <= errs[1]
+    assert errs[-1] < 0.5  # 1/s
+
+
+def test_continuous_model_matches_discrete_eq24(model, full):
+    """The stepper's continuous-time model has the same flutter point as Eq. (24), 0.5 %."""
+    cont = find_flutter(model, aero="full", formulation="continuous")
+    assert cont.speed_mps == pytest.approx(full.speed_mps, rel=5e-3)
+    assert cont.frequency_hz == pytest.approx(full.frequency_hz, rel=5e-3)

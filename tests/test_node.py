@@ -1,0 +1,502 @@
+"""The rig node as a separate process, driven over real topics/services by a test-side rclpy node.
+
+Every wait is on a condition (a message, a count) with a timeout. One fast-mode node serves most
+tests; signal and startup tests start their own short-lived processes.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PointStamped, Vector3Stamped
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from panel_rig.config import SCHEMA, load_config
+from panel_rig.rig.rig import Rig, TunnelSettings
+from panel_rig.rig.safety import SafetyLimits
+
+ROOT = Path(__file__).resolve().parents[1]
+PYTHON = sys.executable
+PARAMS = ROOT / "config" / "tang_dowell_2002.yaml"
+REAL_STEPPER = importlib.util.find_spec("panel_rig.model.stepper") is not None
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+TAU_S = 0.5
+PUBLISH_HZ = 100.0
+
+
+class FakeStepper:
+    """Stand-in for panel_rig.model.stepper.Stepper in the node process: three damped oscillators."""
+
+    def __init__(self, cfg: Any, variant: str = "full", aero: str = "rom") -> None:
+        self.dt_s = cfg.dt_s
+        self.omega = 2 * math.pi * np.array([8.0, 40.0, 110.0])
+        self.reset()
+
+    def reset(self) -> None:
+        self.time_s = 0.0
+        self.q = np.zeros(3)
+        self.qdot = np.zeros(3)
+        self.aero_force_npm = np.zeros(3)
+
+    @property
+    def tip_w_over_L(self) -> float:
+        return float(self.q.sum())
+
+    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
+        return self.q[0] * np.asarray(x_over_L) ** 2
+
+    def step(self, airspeed_mps: float, tip_force_npm: float) -> None:
+        self.aero_force_npm = -1e-3 * airspeed_mps * self.qdot
+        acc = tip_force_npm + self.aero_force_npm - 0.04 * self.omega * self.qdot - self.omega**2 * self.q
+        self.qdot = self.qdot + self.dt_s * acc
+        self.q = self.q + self.dt_s * self.qdot
+        self.time_s += self.dt_s
+
+
+LAUNCHER = (
+    "import sys; sys.path.insert(0, {tests!r}); import test_node; from panel_rig.ros.node import main; "
+    "sys.exit(main(sys.argv[1:], stepper_factory=None if test_node.REAL_STEPPER else test_node.FakeStepper))"
+)
+
+
+def params_any_namespace(tmp: Path) -> Path:
+    """The paper's parameter file keyed ``/**`` (a ``panel_rig:`` key does not match ``/rig/panel_rig``)."""
+    doc = yaml.safe_load(PARAMS.read_text())
+    section = next(v for k, v in doc.items() if k in ("panel_rig", "/panel_rig", "/**"))
+    path = tmp / "physics.yaml"
+    path.write_text(yaml.safe_dump({"/**": section}))
+    return path
+
+
+PARAMS_FILE: list[Path] = []  # set by the ros_env fixture
+
+
+def node_cmd(*params: str) -> list[str]:
+    args = ["--ros-args", "-r", "__ns:=/rig", "--params-file", str(PARAMS_FILE[0])]
+    for p in params:
+        args += ["-p", p]
+    return [PYTHON, "-c", LAUNCHER.format(tests=str(ROOT / "tests")), *args]
+
+
+def shm_files() -> set[str]:
+    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")}
+
+
+def shm_in_use() -> set[str]:
+    """fastrtps_* files some live process still maps (not leftovers: other processes share this machine)."""
+    used: set[str] = set()
+    for maps in Path("/proc").glob("[0-9]*/maps"):
+        try:
+            text = maps.read_text()
+        except OSError:
+            continue
+        used.update(part.rsplit("/", 1)[1] for part in text.split() if part.startswith("/dev/shm/fastrtps_"))
+    return used
+
+
+@pytest.fixture(scope="module")
+def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
+    """A private domain, localhost discovery, logs in tmp; applied to this process and the node's."""
+    log_dir = tmp_path_factory.mktemp("ros_log")
+    PARAMS_FILE[:] = [params_any_namespace(log_dir)]
+    env = {
+        "ROS_DOMAIN_ID": str(random.randint(100, 200)),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "ROS_LOG_DIR": str(log_dir),
+    }
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    yield dict(os.environ)
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+class Client:
+    """The test-side node: subscriptions that keep what arrives, publishers, service clients."""
+
+    def __init__(self, domain_id: int) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("rig_test_client", namespace="/rig", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.got: dict[str, list[Any]] = {k: [] for k in ("tip", "modal", "airspeed", "shape", "diag", "clock")}
+        subs = [
+            (PointStamped, "tip_displacement", "tip", qos_profile_sensor_data),
+            (JointState, "modal_states", "modal", qos_profile_sensor_data),
+            (Vector3Stamped, "airspeed", "airspeed", qos_profile_sensor_data),
+            (Marker, "panel_shape", "shape", RELIABLE),
+            (DiagnosticArray, "/diagnostics", "diag", RELIABLE),
+            (Clock, "/clock", "clock", qos_profile_sensor_data),
+        ]
+        for typ, topic, key, qos in subs:
+            self.node.create_subscription(typ, topic, lambda m, k=key: self.got[k].append(m), qos)
+        self.pubs = {
+            t: self.node.create_publisher(Float64, t, RELIABLE)
+            for t in ("airspeed_cmd", "shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
+        }
+
+    def wait(self, cond: Callable[[], bool], timeout_s: float = 10.0, what: str = "condition") -> None:
+        deadline = time.monotonic() + timeout_s
+        while not cond():
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def diag(self) -> dict[str, str]:
+        return {kv.key: kv.value for kv in self.got["diag"][-1].status[0].values}
+
+    def next_diag(self, timeout_s: float = 5.0) -> dict[str, str]:
+        n = len(self.got["diag"])
+        self.wait(lambda: len(self.got["diag"]) > n, timeout_s, "a new /diagnostics message")
+        return self.diag()
+
+    def publish(self, topic: str, value: float) -> None:
+        self.wait(lambda: self.pubs[topic].get_subscription_count() > 0, 10.0, f"a subscriber on {topic}")
+        self.pubs[topic].publish(Float64(data=value))
+
+    def call(self, srv_type: Any, name: str, request: Any) -> Any:
+        client = self.node.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=10.0), f"service {name} not available"
+        future = client.call_async(request)
+        self.wait(future.done, 10.0, f"{name} response")
+        self.node.destroy_client(client)
+        return future.result()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture(scope="module")
+def client(ros_env: dict[str, str]) -> Iterator[Client]:
+    c = Client(int(ros_env["ROS_DOMAIN_ID"]))
+    yield c
+    c.close()
+
+
+@pytest.fixture(scope="module")
+def fast_node(ros_env: dict[str, str], client: Client, tmp_path_factory: pytest.TempPathFactory) -> Iterator[subprocess.Popen]:
+    """A fast-mode node for the module."""
+    out = tmp_path_factory.mktemp("node") / "node.log"
+    with open(out, "w") as log:
+        proc = subprocess.Popen(
+            node_cmd("fast:=true", f"publish_rate_hz:={PUBLISH_HZ}", "diagnostics_rate_hz:=10.0",
+                     f"tunnel.time_constant_s:={TAU_S}", "safety.max_airspeed_mps:=25.0", f"safety.max_tip_w_over_L:={LCO_MAX_TIP}"),
+            env=ros_env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
+        )
+    try:
+        client.wait(lambda: client.got["diag"] and client.got["airspeed"], 30.0, "the node's first readings")
+        yield proc
+        assert proc.poll() is None, f"node died: {out.read_text()[-2000:]}"
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def stamp_s(msg: Any) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def reset(client: Client) -> None:
+    res = client.call(Trigger, "reset", Trigger.Request())
+    assert res.success
+
+
+def test_readings_filled_and_stamped_in_simulated_time(fast_node: subprocess.Popen, client: Client) -> None:
+    for k in client.got:
+        client.got[k].clear()
+    client.wait(lambda: all(len(v) >= 3 for v in client.got.values()), 15.0, "every topic")
+    modal = client.got["modal"][-1]
+    n = len(modal.name)
+    assert n >= 1 and modal.name == [f"q{i + 1}" for i in range(n)]
+    assert len(modal.position) == len(modal.velocity) == len(modal.effort) == n
+    for msg in client.got["modal"]:
+        assert np.all(np.isfinite(np.r_[msg.position, msg.velocity, msg.effort]))
+    tip = client.got["tip"][-1]
+    assert tip.point.x == pytest.approx(0.072 + 0.27) and math.isfinite(tip.point.z)
+    shape = client.got["shape"][-1]
+    assert shape.type == Marker.LINE_STRIP and len(shape.points) > 10
+    assert len(shape.colors) == len(shape.points)
+    # stamps are simulated time: far from the wall clock's epoch, increasing, and /clock agrees
+    stamps = [stamp_s(m) for m in client.got["airspeed"]]
+    assert stamps[-1] < 1e6 and np.all(np.diff(stamps) > 0)
+    clock = client.got["clock"][-1].clock
+    assert abs(clock.sec + clock.nanosec * 1e-9 - stamps[-1]) < 5.0
+    # publish period in simulated time
+    assert np.median(np.diff(stamps)) == pytest.approx(1.0 / PUBLISH_HZ, rel=0.1)
+    d = client.diag()
+    assert d["mode"] == "fast" and float(d["real_time_factor"]) > 1.0
+
+
+def test_airspeed_follows_command_with_first_order_lag(fast_node: subprocess.Popen, client: Client) -> None:
+    reset(client)
+    v_cmd = 10.0
+    client.got["airspeed"].clear()
+    client.publish("airspeed_cmd", v_cmd)
+    client.wait(lambda: any(m.vector.x > 0.999 * v_cmd for m in client.got["airspeed"]), 30.0, "airspeed to settle")
+    samples = np.array([(stamp_s(m), m.vector.x) for m in client.got["airspeed"]])
+    moving = samples[samples[:, 1] > 0]
+    t1, v1 = moving[0]
+    t0 = t1 + TAU_S * math.log(1.0 - v1 / v_cmd)  # when the set-point was applied
+    model = v_cmd * (1.0 - np.exp(-(moving[:, 0] - t0) / TAU_S))
+    assert np.max(np.abs(moving[:, 1] - model)) < 0.005 * v_cmd
+    at_tau = np.interp(t0 + TAU_S, moving[:, 0], moving[:, 1])
+    assert at_tau == pytest.approx(v_cmd * (1 - math.exp(-1)), rel=0.005)
+    client.publish("airspeed_cmd", 0.0)
+
+
+@pytest.mark.parametrize(
+    ("topic", "value"),
+    [
+        ("airspeed_cmd", math.nan),
+        ("airspeed_cmd", math.inf),
+        ("airspeed_cmd", -3.0),
+        ("airspeed_cmd", 26.0),
+        ("shaker/force_cmd", 1e3),
+        ("shaker/amplitude_cmd", -1.0),
+        ("shaker/frequency_cmd", 1e5),
+    ],
+)
+def test_bad_commands_rejected_and_counted(fast_node: subprocess.Popen, client: Client, topic: str, value: float) -> None:
+    before = int(client.next_diag()["rejected_commands"])
+    client.publish(topic, value)
+    client.wait(lambda: int(client.diag()["rejected_commands"]) > before, 10.0, "the rejection count to rise")
+    d = client.diag()
+    assert int(d["rejected_commands"]) == before + 1
+    assert topic in d["last_rejection"]
+    assert d["state"] == "running" and fast_node.poll() is None
+    n = len(client.got["airspeed"])
+    client.wait(lambda: len(client.got["airspeed"]) > n + 5, 10.0, "readings after a bad command")
+
+
+def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -> None:
+    reset(client)
+    client.publish("airspeed_cmd", 6.0)
+    client.wait(lambda: client.got["airspeed"][-1].vector.x > 3.0, 20.0, "airspeed to rise")
+    res = client.call(Trigger, "abort", Trigger.Request())
+    assert res.success
+    client.wait(lambda: client.diag()["state"] == "aborted", 10.0, "state aborted")
+    before = int(client.diag()["rejected_commands"])
+    client.publish("airspeed_cmd", 5.0)  # refused until reset
+    client.wait(lambda: int(client.diag()["rejected_commands"]) > before, 10.0, "refusal while aborted")
+    client.wait(lambda: client.got["airspeed"][-1].vector.x < 0.5, 30.0, "airspeed ramping down")
+    reset(client)
+    client.wait(lambda: client.diag()["state"] == "running", 10.0, "state running")
+    client.publish("airspeed_cmd", 2.0)
+    client.wait(lambda: float(client.diag()["airspeed_setpoint_mps"]) == 2.0, 10.0, "command accepted again")
+    client.publish("airspeed_cmd", 0.0)
+
+
+def _param(name: str, value: Any) -> ParameterMsg:
+    if isinstance(value, float):
+        v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    else:
+        v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(value))
+    return ParameterMsg(name=name, value=v)
+
+
+def test_live_parameters(fast_node: subprocess.Popen, client: Client) -> None:
+    reset(client)
+
+    def set_param(name: str, value: Any) -> Any:
+        req = SetParameters.Request(parameters=[_param(name, value)])
+        return client.call(SetParameters, "panel_rig/set_parameters", req).results[0]
+
+    physics = set_param("panel.length_m", 0.3)
+    assert not physics.successful and "live" in physics.reason
+    bad = set_param("publish_rate_hz", -5.0)
+    assert not bad.successful and "publish_rate_hz" in bad.reason
+    frozen = set_param("variant", "linear")
+    assert not frozen.successful
+    assert set_param("safety.max_airspeed_mps", 5.0).successful
+    before = int(client.next_diag()["rejected_commands"])
+    client.publish("airspeed_cmd", 6.0)
+    client.wait(lambda: int(client.diag()["rejected_commands"]) > before, 10.0, "over the new limit refused")
+    assert set_param("safety.max_airspeed_mps", 25.0).successful
+    # a live rate change takes effect (stamps in simulated time, 50 Hz)
+    assert set_param("publish_rate_hz", 50.0).successful
+
+    def period() -> float:
+        stamps = [stamp_s(m) for m in client.got["airspeed"][-4:]]
+        return float(np.median(np.diff(stamps))) if len(stamps) == 4 else 0.0
+
+    client.got["airspeed"].clear()
+    client.wait(lambda: abs(period() - 0.02) < 1e-3, 10.0, "50 Hz readings")
+    assert set_param("publish_rate_hz", PUBLISH_HZ).successful
+
+
+def _start(ros_env: dict[str, str], *params: str) -> subprocess.Popen:
+    return subprocess.Popen(node_cmd(*params), env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_exits_cleanly_in_real_time(ros_env: dict[str, str], client: Client, sig: signal.Signals) -> None:
+    before = shm_files()
+    proc = _start(ros_env, "diagnostics_rate_hz:=5.0")
+    try:
+        # the real-time node (the fast node also publishes /diagnostics): real-time factor ~ 1
+        def rt_diags() -> list[dict[str, str]]:
+            values = [{kv.key: kv.value for kv in d.status[0].values} for d in client.got["diag"]]
+            return [v for v in values if v.get("mode") == "real-time"]
+
+        client.got["diag"].clear()
+        client.wait(lambda: len(rt_diags()) >= 3, 30.0, "real-time diagnostics")
+        rtf = float(rt_diags()[-1]["real_time_factor"])
+        assert rtf == pytest.approx(1.0, abs=0.1)
+    finally:
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=15)
+    assert proc.returncode == 0, out[-2000:]
+    assert f"physics parameters given: {len(SCHEMA)} of {len(SCHEMA)}" in out
+    assert "Traceback" not in out
+    leftovers = shm_files() - before - shm_in_use()
+    assert not leftovers, f"left in /dev/shm: {sorted(leftovers)}"
+
+
+def test_invalid_parameters_exit_code_2(ros_env: dict[str, str]) -> None:
+    proc = _start(ros_env, "panel.length_m:=-1.0")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert "panel.length_m" in out
+
+
+def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, ros_env: dict[str, str], tmp_path: Path) -> None:
+    reset(client)
+    profile = tmp_path / "profile.yaml"
+    profile.write_text(
+        "steps:\n"
+        "  - reset\n"
+        "  - airspeed: 5.0\n"
+        "  - dwell_s: 2.0\n"
+        "  - shaker: {amplitude: 0.5, frequency_hz: 8.0}\n"
+        "  - dwell_s: 1.0\n"
+        "  - ramp: {to: 3.0, rate_mps2: 5.0}\n"
+        "  - force: 0.0\n"
+        "  - abort\n"
+        "  - reset\n"
+    )
+    proc = subprocess.run(
+        [PYTHON, "-m", "panel_rig.ros.operator", str(profile), "--namespace", "/rig"],
+        env=ros_env, cwd=ROOT, capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    def num(text: str) -> float:
+        return math.nan if text == "-" else float(text)
+
+    rows = [line.split() for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()]
+    assert len(rows) == 9
+    dwell = next(r for r in rows if r[1] == "dwell_s" and r[2] == "2.0")
+    _, u_cmd, u_meas, _, _ = map(num, dwell[-5:])  # t_end U_cmd U_meas tip_rms_mm f_Hz
+    assert u_cmd == 5.0 and u_meas == pytest.approx(5.0 * (1 - math.exp(-2.0 / TAU_S)), rel=0.05)
+    shaken = next(r for r in rows if r[1] == "dwell_s" and r[2] == "1.0")
+    _, _, _, rms_mm, f_hz = map(num, shaken[-5:])
+    assert rms_mm > 0 and f_hz == pytest.approx(8.0, rel=0.1)
+    ramp = next(r for r in rows if r[1] == "ramp")
+    assert num(ramp[-4]) == 3.0  # commanded at the end of the ramp
+    bad = subprocess.run([PYTHON, "-m", "panel_rig.ros.operator", str(tmp_path / "missing.yaml")],
+                         env=ros_env, capture_output=True, text=True, timeout=30, check=False)
+    assert bad.returncode == 2 and "not found" in bad.stderr
+
+
+def lco_metrics(t: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    """(RMS about the mean, frequency from interpolated mean up-crossings)."""
+    w = w - w.mean()
+    i = np.nonzero((w[:-1] < 0) & (w[1:] >= 0))[0]
+    tc = t[i] - w[i] * (t[i + 1] - t[i]) / (w[i + 1] - w[i])
+    return float(np.sqrt(np.mean(w**2))), float((len(tc) - 1) / (tc[-1] - tc[0]))
+
+
+LCO_CANDIDATES_MPS = (12.0, 13.0, 14.0, 15.0, 16.0)
+LCO_SETTLE_S = 15.0
+LCO_WINDOW_S = 5.0
+LCO_MAX_TIP = 1.9  # the fast node's safety.max_tip_w_over_L (the model's own bound is 2.0)
+
+
+def offline_lco(cfg: Any, airspeed_mps: float) -> tuple[bool, float, float]:
+    """(steady LCO?, RMS w/L, frequency Hz) of the rig + Stepper offline, sampled like the topic."""
+    from panel_rig.model.stepper import Stepper
+
+    rig = Rig(Stepper(cfg), cfg.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=LCO_MAX_TIP),
+              tunnel=TunnelSettings(TAU_S))
+    rig.command_force(0.05)
+    rig.command_airspeed(airspeed_mps)
+    rig.advance_to(0.05)
+    rig.command_force(0.0)
+    t, w = [], []
+    while rig.time_s < LCO_SETTLE_S + LCO_WINDOW_S and rig.state == "running":
+        rig.advance_to(rig.time_s + 1.0 / PUBLISH_HZ)
+        if rig.time_s >= LCO_SETTLE_S - LCO_WINDOW_S:
+            t.append(rig.time_s)
+            w.append(rig.stepper.tip_w_over_L)
+    if rig.state != "running":
+        return False, math.nan, math.nan
+    ta, wa = np.array(t), np.array(w)
+    late = ta >= LCO_SETTLE_S
+    rms_early, _ = lco_metrics(ta[~late], wa[~late])
+    rms, freq = lco_metrics(ta[late], wa[late])
+    return rms > 0.01 and abs(rms_early / rms - 1) < 0.01, rms, freq
+
+
+def test_lco_matches_offline_stepper(fast_node: subprocess.Popen, client: Client) -> None:
+    """Above flutter, the tip RMS and frequency from the topics match the same Stepper run offline."""
+    if not REAL_STEPPER:
+        pytest.skip("needs panel_rig.model.stepper")
+    cfg = load_config()
+    for airspeed in LCO_CANDIDATES_MPS:  # the first airspeed with a steady LCO inside the safety limit
+        steady, rms_off, f_off = offline_lco(cfg, airspeed)
+        if steady:
+            break
+    else:
+        pytest.skip(f"the model has no steady LCO below |w/L| = {LCO_MAX_TIP} at {LCO_CANDIDATES_MPS} m/s")
+    reset(client)
+    client.got["tip"].clear()
+    client.publish("shaker/force_cmd", 0.05)  # a small kick off the rest state
+    client.publish("airspeed_cmd", airspeed)
+    client.wait(lambda: client.got["tip"], 10.0, "tip readings")
+    client.publish("shaker/force_cmd", 0.0)
+    t0 = stamp_s(client.got["tip"][0])
+    end = t0 + LCO_SETTLE_S + LCO_WINDOW_S
+    client.wait(lambda: stamp_s(client.got["tip"][-1]) >= end, 60.0, "the LCO window")
+    assert client.diag()["state"] == "running"
+    tw = np.array([(stamp_s(m), m.point.z / cfg.panel_length_m) for m in client.got["tip"]])
+    tw = tw[tw[:, 0] >= end - LCO_WINDOW_S]
+    rms_topic, f_topic = lco_metrics(tw[:, 0], tw[:, 1])
+    client.publish("airspeed_cmd", 0.0)
+    reset(client)
+    assert rms_topic == pytest.approx(rms_off, rel=0.02), f"U = {airspeed} m/s"
+    assert f_topic == pytest.approx(f_off, rel=0.02), f"U = {airspeed} m/s"

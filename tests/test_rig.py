@@ -1,0 +1,278 @@
+"""The emulated tunnel (panel_rig.rig) against a tiny fake model: lag, shaker, safety, abort/reset."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from panel_rig.rig.actuator import AirspeedActuator
+from panel_rig.rig.reading import Reading
+from panel_rig.rig.rig import ABORTED, RUNNING, Rig, TunnelSettings
+from panel_rig.rig.safety import SafetyLimits
+from panel_rig.rig.shaker import Shaker
+
+DT = 1.0 / 2048.0
+
+
+class FakeDivergence(RuntimeError):
+    """Stands in for panel_rig.model.stepper.DivergenceError."""
+
+
+class FakeStepper:
+    """A damped linear oscillator with the Stepper interface (one mode, w/L = q).
+
+    ``gain`` scales how strongly the airspeed drives it (negative damping above ``flutter_mps``).
+    """
+
+    def __init__(self, dt_s: float = DT, f_hz: float = 10.0, zeta: float = 0.02, flutter_mps: float = 1e9) -> None:
+        self.dt_s = dt_s
+        self.omega = 2 * math.pi * f_hz
+        self.zeta = zeta
+        self.flutter_mps = flutter_mps
+        self.diverge_next = False
+        self.reset()
+
+    def reset(self) -> None:
+        self.time_s = 0.0
+        self.q = np.zeros(1)
+        self.qdot = np.zeros(1)
+        self.aero_force_npm = np.zeros(1)
+
+    @property
+    def tip_w_over_L(self) -> float:
+        return float(self.q[0])
+
+    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
+        return self.q[0] * np.asarray(x_over_L) ** 2
+
+    def step(self, airspeed_mps: float, tip_force_npm: float) -> None:
+        if self.diverge_next:
+            self.q[:] = np.nan
+            raise FakeDivergence("state is not finite")
+        zeta = self.zeta * (1.0 - airspeed_mps / self.flutter_mps)
+        acc = tip_force_npm - 2 * zeta * self.omega * self.qdot - self.omega**2 * self.q
+        self.aero_force_npm = np.array([airspeed_mps * 1e-3 * self.q[0]])
+        self.qdot = self.qdot + self.dt_s * acc  # semi-implicit Euler
+        self.q = self.q + self.dt_s * self.qdot
+        self.time_s += self.dt_s
+
+
+class ListSink:
+    def __init__(self) -> None:
+        self.readings: list[Reading] = []
+        self.commands: list[tuple[str, float, bool, float]] = []
+        self.closed = False
+
+    def on_reading(self, reading: Reading) -> None:
+        self.readings.append(reading)
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        self.commands.append((name, value, accepted, time_s))
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def make_rig(**kw) -> tuple[Rig, FakeStepper, ListSink]:
+    st = FakeStepper(**kw)
+    sink = ListSink()
+    rig = Rig(st, panel_length_m=0.27, limits=SafetyLimits(max_tip_w_over_L=0.5),
+              tunnel=TunnelSettings(time_constant_s=0.5), sinks=[sink], divergence_errors=(FakeDivergence,))
+    return rig, st, sink
+
+
+def test_actuator_lag_one_time_constant():
+    tau = 0.5
+    act = AirspeedActuator(DT, tau)
+    act.setpoint_mps = 10.0
+    n = round(tau / DT)
+    for _ in range(n):
+        act.step()
+    assert act.airspeed_mps == pytest.approx(10.0 * (1 - math.exp(-1)), rel=0.005)
+
+
+def test_actuator_rate_limit_and_zero_tau():
+    act = AirspeedActuator(DT, 0.0, max_rate_mps2=2.0)
+    act.setpoint_mps = 10.0
+    for _ in range(2048):
+        act.step()
+    assert act.airspeed_mps == pytest.approx(2.0, rel=1e-6)
+    act.set_max_rate(0.0)
+    act.step()
+    assert act.airspeed_mps == 10.0
+    with pytest.raises(ValueError):
+        act.set_time_constant(-1.0)
+
+
+def test_shaker_phase_continuous_across_frequency_change():
+    sh = Shaker(DT)
+    sh.amplitude_npm = 1.0
+    sh.frequency_hz = 5.0
+    forces = [sh.step() for _ in range(300)]
+    sh.frequency_hz = 23.0
+    forces += [sh.step() for _ in range(300)]
+    jumps = np.abs(np.diff(forces))
+    # the largest possible change in one step is 2 pi f A dt
+    assert jumps.max() <= 2 * math.pi * 23.0 * DT * 1.0001
+    sh.held_force_npm = 0.5
+    assert sh.force_npm == pytest.approx(0.5 + math.sin(sh.phase_rad))
+
+
+@pytest.mark.parametrize(
+    ("method", "value"),
+    [
+        ("command_airspeed", math.nan),
+        ("command_airspeed", math.inf),
+        ("command_airspeed", -1.0),
+        ("command_airspeed", 31.0),
+        ("command_airspeed", "fast"),
+        ("command_force", math.nan),
+        ("command_force", 11.0),
+        ("command_force", -11.0),
+        ("command_amplitude", -0.1),
+        ("command_amplitude", math.inf),
+        ("command_amplitude", 1e6),
+        ("command_frequency", -1.0),
+        ("command_frequency", 1e4),
+        ("command_frequency", math.nan),
+    ],
+)
+def test_bad_commands_rejected_counted_and_rig_carries_on(method, value):
+    rig, _, sink = make_rig()
+    result = getattr(rig, method)(value)
+    assert not result.accepted and result.reason
+    assert rig.rejected_count == 1 and rig.last_rejection
+    assert rig.state == RUNNING
+    assert sink.commands[-1][2] is False
+    assert rig.advance_to(0.01) == math.floor(0.01 / DT + 1e-6)
+    assert rig.command_airspeed(5.0).accepted
+
+
+def test_advance_to_runs_whole_steps():
+    rig, _, _ = make_rig()
+    assert rig.advance_to(1.0) == 2048
+    assert rig.time_s == pytest.approx(1.0)
+    assert rig.advance_to(1.0) == 0
+    assert rig.advance_to(1.0 + 1.5 * DT) == 1
+    assert rig.advance_to(2.0, max_steps=10) == 10
+
+
+def test_airspeed_follows_command_with_lag():
+    rig, _, sink = make_rig()
+    assert rig.command_airspeed(12.0).accepted
+    rig.advance_to(0.5)
+    r = rig.emit()
+    assert r.airspeed_mps == pytest.approx(12.0 * (1 - math.exp(-1)), rel=0.005)
+    assert sink.readings[-1] is r
+
+
+def test_shaker_drives_model_and_reading_is_consistent():
+    rig, st, _ = make_rig()
+    assert rig.command_amplitude(2.0).accepted
+    assert rig.command_frequency(10.0).accepted
+    assert rig.command_force(0.1).accepted
+    rig.advance_to(1.0)
+    r = rig.reading()
+    assert r.tip_w_m == pytest.approx(0.27 * r.tip_w_over_L)
+    assert abs(r.tip_w_over_L) > 1e-4
+    assert r.q.shape == r.qdot_per_s.shape == r.aero_force_npm.shape == (1,)
+    assert r.q is not st.q
+
+
+def test_operator_abort_and_reset():
+    rig, _, _ = make_rig()
+    rig.command_airspeed(10.0)
+    rig.command_amplitude(1.0)
+    rig.advance_to(2.0)
+    u_before = rig.actuator.airspeed_mps
+    rig.abort("test")
+    assert rig.state == ABORTED and rig.abort_reason == "test"
+    assert rig.actuator.setpoint_mps == 0.0 and rig.shaker.amplitude_npm == 0.0
+    refused = rig.command_airspeed(5.0)
+    assert not refused.accepted and "reset" in refused.reason
+    assert rig.rejected_count == 1
+    rig.advance_to(2.5)
+    assert 0 < rig.actuator.airspeed_mps < u_before  # ramps down, not a jump
+    assert rig.reading().state == ABORTED
+    rig.reset()
+    assert rig.state == RUNNING and rig.actuator.airspeed_mps == 0.0
+    assert rig.reading().tip_w_over_L == 0.0
+    assert rig.command_airspeed(5.0).accepted
+
+
+def test_over_limit_tip_aborts():
+    rig, _, _ = make_rig(flutter_mps=5.0)  # negative damping above 5 m/s: grows until the limit
+    rig.command_airspeed(15.0)
+    rig.command_force(1.0)  # a kick off the rest state
+    rig.advance_to(30.0)
+    assert rig.state == ABORTED and "tip" in rig.abort_reason
+    assert rig.abort_count == 1
+    assert rig.actuator.setpoint_mps == 0.0
+
+
+def test_divergence_aborts_and_resets_model_to_rest():
+    rig, st, _ = make_rig()
+    rig.command_airspeed(10.0)
+    rig.command_force(1.0)
+    rig.advance_to(0.1)
+    st.diverge_next = True
+    rig.step()
+    st.diverge_next = False
+    r = rig.reading()
+    assert rig.state == ABORTED and "diverged" in rig.abort_reason
+    assert np.all(np.isfinite(r.q)) and np.all(r.q == 0.0) and math.isfinite(r.tip_w_m)
+    rig.advance_to(0.2)
+    assert np.all(np.isfinite(rig.reading().q))
+
+
+def test_live_limits_and_sink_failures_are_not_fatal():
+    rig, _, sink = make_rig()
+    rig.set_limits(max_airspeed_mps=5.0)
+    assert not rig.command_airspeed(6.0).accepted
+    with pytest.raises(ValueError):
+        rig.set_limits(max_airspeed_mps=-1.0)
+
+    class Broken:
+        def on_reading(self, reading):
+            raise RuntimeError("boom")
+
+        def on_command(self, *a):
+            raise RuntimeError("boom")
+
+        def close(self):
+            raise RuntimeError("boom")
+
+    rig.sinks.append(Broken())
+    rig.emit()
+    rig.command_airspeed(1.0)
+    assert rig.sink_errors == 2
+    rig.close()
+    assert sink.closed and not rig.sinks
+
+
+def test_real_stepper_safety_abort_and_divergence_reset():
+    """With panel_rig.model.stepper (if present): above flutter the tip limit aborts; a divergence
+    (the model's own bound, set low here) aborts and leaves the model at rest, never NaN."""
+    stepper_mod = pytest.importorskip("panel_rig.model.stepper")
+    from panel_rig.config import load_config
+
+    cfg = load_config()
+    rig = Rig(stepper_mod.Stepper(cfg), cfg.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=0.05),
+              tunnel=TunnelSettings(time_constant_s=0.2))
+    rig.command_force(0.05)
+    rig.command_airspeed(16.0)
+    rig.advance_to(20.0)
+    assert rig.state == ABORTED and "tip" in rig.abort_reason
+    assert rig.actuator.setpoint_mps == 0.0
+
+    low = cfg.replace(max_tip_w_over_L=0.05)
+    rig = Rig(stepper_mod.Stepper(low), low.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=1.0),
+              tunnel=TunnelSettings(time_constant_s=0.2))
+    rig.command_force(0.05)
+    rig.command_airspeed(16.0)
+    rig.advance_to(20.0)
+    assert rig.state == ABORTED and "diverged" in rig.abort_reason
+    r = rig.reading()
+    assert np.all(np.isfinite(np.r_[r.q, r.qdot_per_s, r.aero_force_npm])) and math.isfinite(r.tip_w_m)

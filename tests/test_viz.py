@@ -1,0 +1,129 @@
+"""Rerun logger: a saved .rrd holds the expected entities, rows and blueprint."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rerun")
+
+from rerun.chunk import RrdReader
+
+from panel_rig.rig.reading import Reading
+from panel_rig.viz import RerunLogger, VizError
+
+N_MODES = 3
+N_LIVE = 40  # per-sample readings
+N_BATCH = 250  # columnar samples
+N_SHAPES = 5
+SERIES = ["/tip/w_over_L", "/airspeed/mps", "/shaker/force_npm"] + [
+    f"/modal/q{i}" for i in range(1, N_MODES + 1)
+]
+
+
+def _reading(k: int) -> Reading:
+    t = 0.01 * k
+    q = np.array([np.sin(t), 0.1 * np.cos(t), 0.01 * t])
+    return Reading(
+        time_s=t, airspeed_mps=25.0, shaker_force_npm=0.3 * np.sin(20 * t), tip_w_m=1e-3 * q[0],
+        tip_w_over_L=2e-3 * q[0], q=q, qdot_per_s=np.zeros(3), aero_force_npm=np.zeros(3),
+    )
+
+
+def _row_counts(path: Path) -> tuple[Counter, Counter]:
+    """(temporal rows, static rows) per entity path in the file's recording store."""
+    temporal: Counter = Counter()
+    static: Counter = Counter()
+    for chunk in RrdReader(path).stream().to_chunks():
+        (static if chunk.is_static else temporal)[str(chunk.entity_path)] += chunk.num_rows
+    return temporal, static
+
+
+@pytest.fixture(scope="module")
+def rrd(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rrd") / "run.rrd"
+    logger = RerunLogger(N_MODES, mode="save", target=str(path), recording_name="test run")
+    for k in range(N_LIVE):
+        logger.log_reading(_reading(k))
+    t = 1.0 + np.arange(N_BATCH) / 500.0
+    q = np.column_stack([np.sin(t), np.cos(t), t])
+    logger.log_batch(t, 0.01 * np.sin(t), q, np.full(N_BATCH, 30.0), np.zeros(N_BATCH))
+    x = np.linspace(-0.2, 1.0, 30)
+    for k in range(N_SHAPES):
+        logger.log_shape(0.1 * k, x, 1e-3 * k * np.clip(x, 0.0, None) ** 2)
+    logger.close()
+    logger.close()  # idempotent
+    return path
+
+
+def test_entities_and_row_counts(rrd: Path) -> None:
+    temporal, static = _row_counts(rrd)
+    for entity in SERIES:
+        assert temporal[entity] == N_LIVE + N_BATCH, entity
+        assert static[entity] == 1, entity  # SeriesLines style
+    assert temporal["/panel/shape"] == N_SHAPES
+
+
+def test_values_timeline_and_blueprint(rrd: Path) -> None:
+    reader = RrdReader(rrd)
+    assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
+    store = reader.store()
+    schema = str(store.schema())
+    assert "timeline:sim_time" in schema
+    assert "/panel/shape:LineStrips3D:strips" in schema
+    assert "/modal/q2:SeriesLines:names" in schema
+    batch_chunks = [
+        c for c in reader.stream().to_chunks()
+        if str(c.entity_path) == "/modal/q3" and c.num_rows == N_BATCH
+    ]
+    assert len(batch_chunks) == 1
+    batch = batch_chunks[0].to_record_batch()
+    name = next(n for n in batch.schema.names if "scalars" in n.lower())
+    scalars = [row[0] for row in batch.column(name).to_pylist()]
+    assert scalars[:3] == pytest.approx(1.0 + np.arange(3) / 500.0)
+    times_ns = next(batch.column(n) for n in batch.schema.names if "sim_time" in n)
+    assert times_ns.cast("int64").to_pylist()[-1] == pytest.approx((1.0 + 249 / 500.0) * 1e9, abs=2)
+
+
+def test_rrd_verify_cli(rrd: Path) -> None:
+    rerun_bin = Path(sys.executable).with_name("rerun")
+    if not rerun_bin.exists():
+        pytest.skip("rerun CLI not installed")
+    proc = subprocess.run(
+        [str(rerun_bin), "rrd", "verify", str(rrd)],
+        check=False, capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_off_mode_writes_nothing(tmp_path: Path) -> None:
+    target = tmp_path / "never.rrd"
+    logger = RerunLogger(N_MODES, mode="off", target=str(target))
+    assert not logger.enabled
+    logger.log_reading(_reading(1))
+    logger.log_batch(np.arange(3.0), np.zeros(3), np.zeros((3, 3)), np.zeros(3), np.zeros(3))
+    logger.log_shape(0.0, np.arange(3.0), np.zeros(3))
+    logger.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_configuration_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(VizError, match="mode"):
+        RerunLogger(N_MODES, mode="live", target=None)
+    with pytest.raises(VizError, match="target"):
+        RerunLogger(N_MODES, mode="save", target=None)
+    with pytest.raises(VizError, match="does not exist"):
+        RerunLogger(N_MODES, mode="save", target=str(tmp_path / "no" / "x.rrd"))
+    logger = RerunLogger(N_MODES, mode="save", target=str(tmp_path / "ok.rrd"))
+    try:
+        with pytest.raises(VizError, match="samples"):
+            logger.log_batch(np.arange(3.0), np.zeros(2), np.zeros((3, 3)), np.zeros(3), np.zeros(3))
+        with pytest.raises(VizError, match="points"):
+            logger.log_shape(0.0, np.arange(3.0), np.zeros(4))
+    finally:
+        logger.close()
