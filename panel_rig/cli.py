@@ -96,6 +96,128 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     return 0
 
 
+class Progress:
+    """A one-line progress bar on a terminal (stderr); silent otherwise."""
+
+    def __init__(self, label: str):
+        self.label = label
+        self.on = sys.stderr.isatty()
+        self._last = -1
+
+    def __call__(self, fraction: float) -> None:
+        pct = int(100 * fraction)
+        if self.on and pct != self._last:
+            self._last = pct
+            bar = "#" * (pct // 4)
+            print(f"\r{self.label} [{bar:<25}] {pct:3d}%", end="" if pct < 100 else "\n", file=sys.stderr, flush=True)
+
+
+def _airspeed(value: float) -> float:
+    if not np.isfinite(value) or value < 0 or value > 200:
+        raise UsageError(f"airspeed must be in [0, 200] m/s, got {value}")
+    return value
+
+
+def cmd_lco(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.lco import run_lco
+
+    cfg = _config(args)
+    if not (0 < args.duration <= 3600):
+        raise UsageError(f"--duration must be in (0, 3600] s, got {args.duration}")
+    res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                          keep=bool(args.plot), progress=Progress("lco"))
+    payload = res.as_dict()
+    if args.plot:
+        from panel_rig.analysis.plots import plot_series
+
+        t = np.arange(tip.size) * cfg.dt_s
+        payload["plot"] = str(plot_series(args.plot, t, [(tip, f"{args.variant}, {args.aero}")], "time, s",
+                                          "tip w/L", f"U = {args.airspeed} m/s"))
+    _emit(args, payload, lambda: "\n".join(f"{k:24s} {v}" for k, v in payload.items()))
+    return 0
+
+
+def _range(text: str) -> np.ndarray:
+    try:
+        a, b, c = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise UsageError(f"--airspeeds expects START:STOP:STEP, got {text!r}") from None
+    if c <= 0 or b < a:
+        raise UsageError(f"--airspeeds needs STOP >= START and STEP > 0, got {text!r}")
+    return np.array([_airspeed(u) for u in np.arange(a, b + 0.5 * c, c)])
+
+
+def cmd_lco_sweep(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.lco import lco_sweep
+
+    cfg = _config(args)
+    speeds = _range(args.airspeeds)
+    res = lco_sweep(cfg, speeds, args.duration, args.variant, args.aero, args.scheme, progress=Progress("sweep"))
+    payload = {"airspeed_mps": speeds, "results": [r.as_dict() for r in res]}
+    if args.plot:
+        from panel_rig.analysis.plots import plot_series
+
+        payload["plot"] = str(plot_series(args.plot, speeds, [
+            (np.array([r.rms_tip_w_over_L for r in res]), "RMS tip w/L"),
+            (np.array([r.dominant_frequency_hz for r in res]) / 50, "frequency / 50 Hz")],
+            "airspeed, m/s", "RMS w/L ; f/50", "LCO vs airspeed (Fig. 8)"))
+    _emit(args, payload, lambda: "U (m/s)   RMS w/L    f (Hz)  diverged\n" + "\n".join(
+        f"{r.airspeed_mps:7.2f}  {r.rms_tip_w_over_L:8.4f}  {r.dominant_frequency_hz:8.2f}  {r.diverged}" for r in res))
+    return 0
+
+
+def cmd_forced(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.forced import forced_sweep
+
+    cfg = _config(args)
+    f0, f1 = args.band
+    if not (0 < f0 <= f1 <= 500) or not (0 < args.step <= f1 - f0 + 1e-9 or f0 == f1):
+        raise UsageError(f"--band needs 0 < F0 <= F1 <= 500 Hz and 0 < --step, got {args.band} {args.step}")
+    r = forced_sweep(cfg, f0, f1, args.step, args.variant, args.f0, args.dwell, scheme=args.scheme,
+                     progress=Progress("forced"))
+    payload = {"frequency_hz": r.frequency_hz, "amplitude_tip_w_over_L": r.amplitude_tip_w_over_L,
+               "peak_frequency_hz": r.peak_frequency_hz}
+    if args.plot:
+        from panel_rig.analysis.plots import plot_series
+
+        payload["plot"] = str(plot_series(args.plot, r.frequency_hz, [(r.amplitude_tip_w_over_L, args.variant)],
+                                          "frequency, Hz", "tip w/L amplitude", "forced response (F0)"))
+    _emit(args, payload, lambda: f"peak at {r.peak_frequency_hz:.2f} Hz\n" + "\n".join(
+        f"{fr:6.2f} Hz  {a:.5f}" for fr, a in zip(r.frequency_hz, r.amplitude_tip_w_over_L)))
+    return 0
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from panel_rig.analysis.report import build_report
+
+    cfg = _config(args)
+    out = Path(args.out)
+    result = build_report(cfg, out, log=lambda s: print(f"panel-rig paper: {s}", file=sys.stderr),
+                          sweep_s=args.sweep_duration)
+    print((out / "report.md").read_text() if not args.json else json.dumps(result, default=float))
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from panel_rig.ros.node import main as node_main
+
+    return node_main(args.rest)
+
+
+def cmd_operate(args: argparse.Namespace) -> int:
+    from panel_rig.ros.operator import main as operator_main
+
+    return operator_main([args.profile, *args.rest])
+
+
+def cmd_bag_recover(args: argparse.Namespace) -> int:
+    from panel_rig.recording.recover import main_bag_recover
+
+    return main_bag_recover(args.bag)
+
+
 # ---- parser -----------------------------------------------------------------------------------
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", metavar="FILE", help="ROS 2 parameters YAML (default: the paper's)")
@@ -124,6 +246,59 @@ def build_parser() -> argparse.ArgumentParser:
                    help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus)")
     p.set_defaults(func=cmd_flutter)
+
+    def model_opts(p: argparse.ArgumentParser, aero: bool = True) -> None:
+        p.add_argument("--variant", choices=("full", "stiffness", "inertia", "linear"), default="full")
+        p.add_argument("--scheme", choices=("implicit", "paper", "paper_literal"), default="implicit",
+                       help="implicit: consistent midpoint; paper: Eq. (24) nonlinear mass at t; "
+                            "paper_literal: dM multiplying only the new state")
+        if aero:
+            p.add_argument("--aero", choices=("rom", "full"), default="rom")
+        p.add_argument("--plot", metavar="FILE.png")
+
+    p = sub.add_parser("lco", help="limit-cycle run at one airspeed (Figs. 4, 6, 7)")
+    _common(p)
+    model_opts(p)
+    p.add_argument("--airspeed", type=float, required=True, metavar="U", help="m/s")
+    p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds")
+    p.set_defaults(func=cmd_lco)
+
+    p = sub.add_parser("lco-sweep", help="LCO amplitude and frequency versus airspeed (Fig. 8)")
+    _common(p)
+    model_opts(p)
+    p.add_argument("--airspeeds", required=True, metavar="START:STOP:STEP")
+    p.add_argument("--duration", type=float, default=30.0, metavar="T")
+    p.set_defaults(func=cmd_lco_sweep)
+
+    p = sub.add_parser("forced", help="forced response without aero, protocol F0 (Fig. 2)")
+    _common(p)
+    model_opts(p, aero=False)
+    p.add_argument("--band", type=float, nargs=2, required=True, metavar=("F0", "F1"), help="Hz")
+    p.add_argument("--step", type=float, default=0.1, metavar="DF", help="Hz")
+    p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m")
+    p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency")
+    p.set_defaults(func=cmd_forced)
+
+    p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
+    _common(p)
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed")
+    p.set_defaults(func=cmd_paper)
+
+    p = sub.add_parser("run", help="the live rig node (same as `ros2 run panel_rig rig_node`)")
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="--fast, --params FILE, --ros-args ...")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("operate", help="play a test procedure over the rig's command topics")
+    p.add_argument("--profile", required=True, metavar="FILE.yaml")
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_operate)
+
+    p = sub.add_parser("bag", help="recording utilities")
+    bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
+    r = bag.add_parser("recover", help="rebuild a readable bag from a killed recording")
+    r.add_argument("bag", metavar="BAG")
+    r.set_defaults(func=cmd_bag_recover)
     return parser
 
 
@@ -131,7 +306,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)
-    except (UsageError, ConfigError) as exc:
+    except (UsageError, ConfigError, ValueError) as exc:
         print(f"panel-rig: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

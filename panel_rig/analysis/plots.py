@@ -64,3 +64,21 @@ def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, 
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarray, str]],
+                  marks: Sequence[tuple[float, str]] = (), f_max_hz: float = 40.0) -> Path:
+    """Amplitude spectra (Fig. 4b) with vertical marks at reference frequencies."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for x, label in series:
+        x = np.asarray(x) - np.mean(x)
+        spec = np.abs(np.fft.rfft(x * np.hanning(x.size))) * 2 / max(1, x.size) * 2
+        f = np.fft.rfftfreq(x.size, dt_s)
+        sel = f <= f_max_hz
+        ax.plot(f[sel], spec[sel], label=label, lw=1)
+    for fr, label in marks:
+        ax.axvline(fr, ls=":", lw=1, color="k")
+        ax.annotate(label, (fr, ax.get_ylim()[1] * 0.9), fontsize=7, rotation=90)
+    ax.set(xlabel="frequency, Hz", ylabel="amplitude of tip w/L", title="Fig. 4(b): spectrum")
+    ax.legend(fontsize=8)
+    return _save(fig, path)

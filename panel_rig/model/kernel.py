@@ -8,8 +8,9 @@ trapezoidal / implicit-midpoint rule on
     d xi/dt = (U/dx) Lam xi - Gv q_dd - U Gs q_dot
 
 with every term at the midpoint t + dt/2 except the nonlinear mass, taken at q* = q(t + dt/2)
-('implicit'), at q* = q(t) ('paper': Eq. 24 with dM(q^t)), or at q(t) and multiplying only the new
-velocity ('paper_literal': [D2 + dM] z^{t+1} + D1 z^t read literally, which adds dM(q) q_dot / dt). The aero blocks of Lam are 1x1 or 2x2
+('implicit'), at q* = q(t) ('paper': Eq. 24 with dM(q^t)), or at q(t) multiplying only the new
+velocity ('paper_literal': [D2 + dM] z^{t+1} + D1 z^t read literally, which adds
+dM(q) q_dot / dt). The aero blocks of Lam are 1x1 or 2x2
 ([[a, b], [-b, a]]), so the aerodynamic solve is closed-form and the airspeed may change every step.
 The 3x3 structural system is solved by a chord-Newton iteration.
 """

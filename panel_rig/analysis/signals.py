@@ -1,0 +1,54 @@
+"""Signal metrics of a sampled response: RMS, peak, dominant frequency, steady-state detection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def dominant_frequency_hz(x: np.ndarray, dt_s: float) -> float:
+    """Frequency of the largest FFT peak (Hann window, mean removed), refined by parabolic interpolation."""
+    x = np.asarray(x, float) - np.mean(x)
+    if x.size < 8 or not np.any(x):
+        return 0.0
+    spec = np.abs(np.fft.rfft(x * np.hanning(x.size)))
+    k = int(np.argmax(spec[1:]) + 1)
+    if 1 <= k < spec.size - 1:
+        a, b, c = np.log(spec[k - 1 : k + 2] + 1e-300)
+        k = k + 0.5 * (a - c) / (a - 2 * b + c) if (a - 2 * b + c) != 0 else k
+    return float(k / (x.size * dt_s))
+
+
+def window_rms(x: np.ndarray, n_window: int) -> np.ndarray:
+    """RMS of consecutive non-overlapping windows of n_window samples."""
+    m = x.size // n_window
+    return np.sqrt(np.mean(np.square(x[: m * n_window].reshape(m, n_window)), axis=1))
+
+
+def steady_onset_s(x: np.ndarray, dt_s: float, window_s: float = 1.0, rel_tol: float = 0.03,
+                   n_stable: int = 3) -> float | None:
+    """Start time of the steady part: the first window from which n_stable consecutive 1 s windows have
+    RMS within rel_tol of the final window's RMS. None if the end is not steady."""
+    w = window_rms(x, max(1, int(round(window_s / dt_s))))
+    if w.size < n_stable or w[-1] == 0:
+        return None
+    ok = np.abs(w / w[-1] - 1) <= rel_tol
+    if not ok[-n_stable:].all():
+        return None
+    first = w.size - 1
+    while first > 0 and ok[first - 1]:
+        first -= 1
+    return first * window_s
+
+
+def growth_rate_per_s(x: np.ndarray, dt_s: float, window_s: float = 0.5) -> float:
+    """Exponential growth (+) or decay (-) rate of the windowed RMS envelope, 1/s (least squares on log)."""
+    w = window_rms(x, max(1, int(round(window_s / dt_s))))
+    w = w[w > 0]
+    if w.size < 3:
+        return 0.0
+    t = np.arange(w.size) * window_s
+    return float(np.polyfit(t, np.log(w), 1)[0])
