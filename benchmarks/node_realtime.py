@@ -1,0 +1,108 @@
+"""Node timing: real-time factor, overruns and tick jitter at the default rates; fast-mode speed.
+
+Runs the rig node in-process (its own rclpy context and a private ROS domain; no subscribers).
+``python benchmarks/node_realtime.py [duration_s]`` prints JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+
+class _Oscillator:
+    """Used only if panel_rig.model.stepper is not there yet (reported as stepper = "fake")."""
+
+    def __init__(self, cfg: Any, variant: str = "full", aero: str = "rom") -> None:
+        self.dt_s = cfg.dt_s
+        self.omega = 2 * math.pi * np.array([8.0, 40.0, 110.0])
+        self.reset()
+
+    def reset(self) -> None:
+        self.time_s, self.q, self.qdot, self.aero_force_npm = 0.0, np.zeros(3), np.zeros(3), np.zeros(3)
+
+    @property
+    def tip_w_over_L(self) -> float:
+        return float(self.q.sum())
+
+    def shape_w_over_L(self, x: np.ndarray) -> np.ndarray:
+        return self.q[0] * np.asarray(x) ** 2
+
+    def step(self, airspeed_mps: float, tip_force_npm: float) -> None:
+        acc = tip_force_npm - 0.04 * self.omega * self.qdot - self.omega**2 * self.q
+        self.qdot = self.qdot + self.dt_s * acc
+        self.q = self.q + self.dt_s * self.qdot
+        self.time_s += self.dt_s
+
+
+def _run(fast: bool, duration_s: float, airspeed_mps: float, factory: Any) -> dict[str, float]:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode, spin
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.randint(201, 230))
+    node = RigNode(
+        stepper_factory=factory, context=ctx,
+        parameter_overrides=[
+            Parameter("fast", value=fast),
+            Parameter("tunnel.time_constant_s", value=0.2),
+            Parameter("safety.max_tip_w_over_L", value=1.9),
+        ],
+    )
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        node.rig.command_force(0.05)  # a small held force: a perturbation off the rest state
+        node.rig.command_airspeed(airspeed_mps)
+        end = time.monotonic() + duration_s
+        spin(node, executor, lambda: time.monotonic() > end)
+        stats = node.stats()
+        stats["state"] = node.rig.state
+        stats["tip_w_over_L"] = node.rig.stepper.tip_w_over_L
+        executor.shutdown()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    return stats
+
+
+def measure(duration_s: float = 60.0, airspeed_mps: float = 12.0, fast_duration_s: float = 5.0) -> dict[str, Any]:
+    """Real-time run of ``duration_s`` (default rates: 500 Hz publish, 2048 Hz physics) at ``airspeed_mps``
+    (above flutter: LCO), then a fast-mode run of ``fast_duration_s``."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    try:
+        import panel_rig.model.stepper  # noqa: F401
+
+        factory, kind = None, "real"
+    except ImportError:
+        factory, kind = _Oscillator, "fake"
+    rt = _run(False, duration_s, airspeed_mps, factory)
+    fast = _run(True, fast_duration_s, airspeed_mps, factory)
+    return {
+        "stepper": kind,
+        "airspeed_mps": airspeed_mps,
+        "duration_s": duration_s,
+        "realtime_factor": round(rt["realtime_factor"], 4),
+        "overruns": rt["overruns"],
+        "ticks": rt["ticks"],
+        "tick_interval_mean_ms": round(rt["tick_interval_mean_ms"], 3),
+        "p99_tick_jitter_ms": round(rt["tick_jitter_p99_ms"], 3),
+        "state_after_realtime": rt["state"],
+        "fast_realtime_factor": round(fast["realtime_factor"], 2),
+        "fast_sim_s": round(fast["sim_time_s"], 2),
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(measure(float(sys.argv[1]) if len(sys.argv) > 1 else 60.0), indent=2))

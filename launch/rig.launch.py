@@ -1,0 +1,27 @@
+"""Launch the panel_rig node in /rig with the paper's physics and the node parameters."""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch_ros.actions import Node
+
+from launch import LaunchDescription
+
+
+def generate_launch_description() -> LaunchDescription:
+    config = os.path.join(get_package_share_directory("panel_rig"), "config")
+    return LaunchDescription(
+        [
+            Node(
+                package="panel_rig",
+                executable="rig_node",
+                name="panel_rig",
+                namespace="rig",
+                output="screen",
+                parameters=[
+                    os.path.join(config, "tang_dowell_2002.yaml"),
+                    os.path.join(config, "rig.yaml"),
+                ],
+            )
+        ]
+    )

@@ -1,0 +1,481 @@
+"""``rig_node``: the rclpy adapter around :class:`panel_rig.rig.rig.Rig` (logic lives in ``panel_rig.rig``).
+
+Run: ``rig_node --ros-args -r __ns:=/rig --params-file config/tang_dowell_2002.yaml``.
+Real-time mode (default): a timer at ``publish_rate_hz`` advances the rig in whole physics steps to
+the steady clock. Fast mode (``fast: true``): steps as fast as possible, publishes ``/clock``.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PointStamped, Vector3Stamped
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
+from panel_rig.rig.reading import Reading, Sink
+from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
+from panel_rig.rig.safety import SafetyLimits
+from panel_rig.ros import messages
+from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params, coerce
+
+NODE_NAME = "panel_rig"
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+SHAPE_POINTS = 31
+StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
+
+
+class StartupError(RuntimeError):
+    """The node cannot start (bad parameters, model unavailable); main() exits with code 2."""
+
+
+def default_stepper_factory(cfg: PanelConfig, variant: str, aero: str) -> StepperLike:
+    """The real model: ``panel_rig.model.stepper.Stepper``."""
+    try:
+        from panel_rig.model.stepper import Stepper
+    except ImportError as exc:
+        raise StartupError(f"model stepper unavailable: {exc}") from exc
+    return Stepper(cfg, variant=variant, aero=aero)
+
+
+class RigNode(Node):
+    """Topics, services, parameters and timers around one :class:`Rig`."""
+
+    def __init__(self, *, stepper_factory: StepperFactory | None = None, **node_kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **node_kwargs)
+        self.cfg, p = self._read_parameters()
+        self.fast: bool = p["fast"]
+        limits = SafetyLimits(**{f: p[k] for k, f in LIMIT_FIELDS.items()})
+        tunnel = TunnelSettings(p["tunnel.time_constant_s"], p["tunnel.max_rate_mps2"])
+        factory = stepper_factory or default_stepper_factory
+        try:
+            stepper = factory(self.cfg, p["variant"], p["aero"])
+        except StartupError:
+            raise
+        except Exception as exc:
+            raise StartupError(f"cannot build the model ({type(exc).__name__}: {exc})") from exc
+        try:  # warm-up (JIT compile, caches) before the clock starts; then back to rest
+            stepper.step(0.0, 0.0)
+            stepper.reset()
+        except Exception as exc:
+            raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
+        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel)
+        self.dt_s = self.rig.dt_s
+        self._publish_period_s = 1.0 / p["publish_rate_hz"]
+        self._shape_period_s = 1.0 / p["shape_rate_hz"]
+        self._max_lag_s = p["max_lag_s"]
+        self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
+        self._x_over_L = np.linspace(0.0, 1.0, SHAPE_POINTS)
+        self._trailing_edge_x_m = self.cfg.airfoil_length_m + self.cfg.panel_length_m
+        self._recorders: list[Any] = []
+        self._topic_prefix = self.get_namespace().rstrip("/")
+        self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
+
+        # readings out (sensor-data QoS), commands in (reliable)
+        sensor = qos_profile_sensor_data
+        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)
+        self.pub_modal = self.create_publisher(JointState, "modal_states", sensor)
+        self.pub_airspeed = self.create_publisher(Vector3Stamped, "airspeed", sensor)
+        self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
+        commands = {
+            "airspeed_cmd": self.rig.command_airspeed,
+            "shaker/force_cmd": self.rig.command_force,
+            "shaker/amplitude_cmd": self.rig.command_amplitude,
+            "shaker/frequency_cmd": self.rig.command_frequency,
+        }
+        self._subs = [
+            self.create_subscription(Float64, topic, self._command_callback(topic, fn), COMMAND_QOS)
+            for topic, fn in commands.items()
+        ]
+        self.create_service(Trigger, "reset", self._on_reset)
+        self.create_service(Trigger, "abort", self._on_abort)
+
+        # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
+        self._wall0 = time.monotonic()
+        self._wall_anchor = self._wall0
+        self._sim_anchor = self.rig.time_s
+        self._last_tick: float | None = None
+        self.tick_intervals_s: deque[float] = deque(maxlen=500_000)
+        self._window_intervals: list[float] = []
+        self._diag_wall = self._wall0
+        self._diag_sim = self.rig.time_s
+        self._next_shape_s = 0.0
+        self._fast_next_s = self.rig.time_s
+        self._pending: dict[str, Any] = {}
+        self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
+        self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        mode = "fast" if self.fast else "real-time"
+        self.get_logger().info(
+            f"panel_rig up ({mode}): dt = {self.dt_s:.6g} s, publish {1 / self._publish_period_s:g} Hz, "
+            f"variant {p['variant']}, aero {p['aero']}, {len(self._names)} modes"
+        )
+
+    # ---- parameters ------------------------------------------------------------------------------
+    def _read_parameters(self) -> tuple[PanelConfig, dict[str, Any]]:
+        defaults = PanelConfig()
+        for key, spec in SCHEMA.items():
+            self.declare_parameter(
+                key, getattr(defaults, spec.field),
+                ParameterDescriptor(dynamic_typing=True, description=f"physics ({spec.rule}); not live"),
+            )
+        for name, spec in NODE_PARAMS.items():
+            self.declare_parameter(
+                name, spec.default,
+                ParameterDescriptor(dynamic_typing=True, description=spec.description + ("" if spec.live else "; not live")),
+            )
+        unknown = sorted(set(getattr(self, "_parameter_overrides", {})) - set(SCHEMA) - set(NODE_PARAMS) - {"use_sim_time"})
+        if unknown:
+            self.get_logger().warning(f"ignoring unknown parameters: {', '.join(unknown)}")
+        given = set(getattr(self, "_parameter_overrides", {}))
+        self.get_logger().info(
+            f"physics parameters given: {len(given & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
+        )
+        node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
+        problems = check_node_params(node_values)
+        if problems:
+            raise StartupError("invalid node parameters: " + "; ".join(problems))
+        node_values = {n: coerce(n, v) for n, v in node_values.items()}
+        physics = {k: self.get_parameter(k).value for k in SCHEMA}
+        if node_values["physics_dt"] > 0:
+            physics["sim.dt_s"] = node_values["physics_dt"]
+        try:
+            cfg = config_from_flat(physics)
+        except ConfigError as exc:
+            raise StartupError(f"invalid physics parameter: {exc}") from exc
+        if node_values["safety.max_tip_w_over_L"] >= cfg.max_tip_w_over_L:
+            self.get_logger().warning(
+                f"safety.max_tip_w_over_L = {node_values['safety.max_tip_w_over_L']:g} is not below the "
+                f"model's divergence bound sim.max_tip_w_over_L = {cfg.max_tip_w_over_L:g}"
+            )
+        return cfg, node_values
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Validate a live change: physics and structural parameters are refused with a reason."""
+        for prm in params:
+            if prm.name in SCHEMA:
+                return SetParametersResult(
+                    successful=False, reason=f"{prm.name}: physics parameters cannot change live; restart the node"
+                )
+            spec = NODE_PARAMS.get(prm.name)
+            if spec is None:
+                continue
+            if not spec.live:
+                return SetParametersResult(successful=False, reason=f"{prm.name}: cannot change live; restart the node")
+            reason = spec.check(prm.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
+        return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, params: list[Parameter]) -> None:
+        """Apply accepted live changes (rates are applied between callbacks, see :meth:`apply_pending`)."""
+        limits: dict[str, float] = {}
+        for prm in params:
+            if prm.name not in NODE_PARAMS:
+                continue
+            value = coerce(prm.name, prm.value)
+            if prm.name in LIMIT_FIELDS:
+                limits[LIMIT_FIELDS[prm.name]] = value
+            elif prm.name == "tunnel.time_constant_s":
+                self.rig.actuator.set_time_constant(value)
+            elif prm.name == "tunnel.max_rate_mps2":
+                self.rig.actuator.set_max_rate(value)
+            elif prm.name == "max_lag_s":
+                self._max_lag_s = value
+            else:
+                self._pending[prm.name] = value
+        if limits:
+            self.rig.set_limits(**limits)
+        self.get_logger().info("parameters set: " + ", ".join(f"{p.name}={p.value}" for p in params))
+
+    def apply_pending(self) -> None:
+        """Re-create timers for changed rates (outside any callback)."""
+        pending, self._pending = self._pending, {}
+        if "publish_rate_hz" in pending:
+            self._publish_period_s = 1.0 / pending["publish_rate_hz"]
+            if self._tick_timer is not None:
+                self.destroy_timer(self._tick_timer)
+                self._tick_timer = self.create_timer(self._publish_period_s, self._tick)
+                self._last_tick = None
+        if "shape_rate_hz" in pending:
+            self._shape_period_s = 1.0 / pending["shape_rate_hz"]
+        if "diagnostics_rate_hz" in pending:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = self.create_timer(1.0 / pending["diagnostics_rate_hz"], self.publish_diagnostics)
+
+    # ---- sinks -----------------------------------------------------------------------------------
+    def _open_sinks(self, p: dict[str, Any]) -> None:
+        """Recording (``record``/``bag_dir``) and Rerun (``rerun``) if those packages are present."""
+        if p["record"]:
+            try:
+                from panel_rig.recording import BagWriter
+
+                run = time.strftime("rig_%Y%m%d_%H%M%S")
+                writer = BagWriter(Path(p["bag_dir"]) / run)
+                params = {prm.name: prm.value for prm in self._parameters.values()}
+                writer.write_parameters(params)
+                self._recorders.append(writer)
+                self.get_logger().info(f"recording to {writer.bag_dir}")
+            except Exception as exc:  # noqa: BLE001 (a missing recorder must not stop the rig)
+                self.get_logger().error(f"recording disabled: {type(exc).__name__}: {exc}")
+        self._rerun: Any = None
+        if p["rerun"] != "off":
+            mode, _, target = p["rerun"].partition(":")
+            try:
+                from panel_rig.viz import RerunLogger
+
+                self._rerun = RerunLogger(len(self._names), mode=mode, target=target or None)
+                self.rig.sinks.append(self._rerun)
+                self.get_logger().info(f"rerun sink: {p['rerun']}")
+            except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
+                self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
+
+    def add_sink(self, sink: Sink) -> None:
+        """Hook for extra consumers of readings and commands."""
+        self.rig.sinks.append(sink)
+
+    def _publish(self, pub: Any, msg: Any, time_s: float, qos: str = "sensor") -> None:
+        pub.publish(msg)
+        for rec in self._recorders:
+            try:
+                rec.write(self._topic_name(pub.topic_name), msg, messages.stamp_ns(time_s), qos=qos)
+            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
+                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+
+    def _topic_name(self, name: str) -> str:
+        return name if name.startswith("/") else f"{self._topic_prefix}/{name}"
+
+    # ---- commands and services -----------------------------------------------------------------------
+    def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
+        full = self._topic_name(topic)
+
+        def callback(msg: Float64) -> None:
+            result = command(msg.data)
+            for rec in self._recorders:
+                try:
+                    rec.write(full, msg, messages.stamp_ns(self.rig.time_s), qos="reliable")
+                except Exception as exc:  # noqa: BLE001
+                    self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+            if not result.accepted:
+                self.get_logger().warning(f"{topic} {msg.data!r} rejected: {result.reason}", throttle_duration_sec=0.2)
+
+        return callback
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        was = self.rig.state
+        self.rig.reset()
+        response.success = True
+        response.message = f"reset at t = {self.rig.time_s:.3f} s (was {was})"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_abort(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.rig.abort("abort service")
+        response.success = True
+        response.message = f"aborted at t = {self.rig.time_s:.3f} s; airspeed ramping to 0"
+        return response
+
+    # ---- time ------------------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        """Real-time tick: step to the steady clock (bounded by one tick of wall time), publish."""
+        now = time.monotonic()
+        if self._last_tick is not None:
+            interval = now - self._last_tick
+            self.tick_intervals_s.append(interval)
+            self._window_intervals.append(interval)
+        self._last_tick = now
+        target = self._sim_anchor + (now - self._wall_anchor)
+        deadline = now + self._publish_period_s
+        while self.rig.advance_to(target, max_steps=2) and time.monotonic() < deadline:
+            pass
+        lag = target - self.rig.time_s
+        if lag > self._max_lag_s:
+            # cannot catch up within the bound: count it and let simulated time slip
+            self.rig.note_overrun()
+            self._wall_anchor += lag
+            self.get_logger().warning(f"overrun: {lag * 1e3:.1f} ms behind the clock", throttle_duration_sec=1.0)
+        self.publish_readings()
+
+    def fast_iteration(self) -> None:
+        """Fast mode: one publish period of simulated time as fast as possible, then publish + /clock."""
+        self._fast_next_s = max(self._fast_next_s, self.rig.time_s) + self._publish_period_s
+        self.rig.advance_to(self._fast_next_s)
+        self.publish_readings()
+
+    def publish_readings(self) -> Reading:
+        """Readings to topics and sinks; the shape at its own (simulated-time) rate."""
+        r = self.rig.emit()
+        t = r.time_s
+        self._publish(self.pub_tip, messages.tip_msg(r, self._trailing_edge_x_m), t)
+        self._publish(self.pub_modal, messages.modal_msg(r, self._names), t)
+        self._publish(self.pub_airspeed, messages.airspeed_msg(r), t)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(messages.clock_msg(t))
+        if t >= self._next_shape_s:
+            self._next_shape_s = t + self._shape_period_s
+            w = self.rig.shape_w_over_L(self._x_over_L)
+            marker = messages.shape_msg(
+                t, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, r.state == ABORTED
+            )
+            self._publish(self.pub_shape, marker, t, qos="reliable")
+            if self._rerun is not None:
+                try:
+                    self._rerun.log_shape(t, [pt.x for pt in marker.points], [pt.z for pt in marker.points])
+                except Exception as exc:  # noqa: BLE001
+                    self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
+        return r
+
+    def stats(self) -> dict[str, float]:
+        """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
+        wall = time.monotonic() - self._wall0
+        intervals = np.asarray(self.tick_intervals_s, dtype=float)
+        jitter = np.abs(intervals - self._publish_period_s) * 1e3 if intervals.size else np.zeros(1)
+        return {
+            "sim_time_s": self.rig.time_s,
+            "wall_time_s": wall,
+            "realtime_factor": self.rig.time_s / wall if wall > 0 else 0.0,
+            "overruns": self.rig.overrun_count,
+            "ticks": int(intervals.size),
+            "tick_jitter_p99_ms": float(np.percentile(jitter, 99)),
+            "tick_interval_mean_ms": float(intervals.mean() * 1e3) if intervals.size else 0.0,
+        }
+
+    def publish_diagnostics(self) -> None:
+        """State, real-time factor (last window), overruns, rejected commands, last rejection."""
+        now = time.monotonic()
+        sim = self.rig.time_s
+        rtf = (sim - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
+        self._diag_wall, self._diag_sim = now, sim
+        window = np.asarray(self._window_intervals, dtype=float)
+        self._window_intervals = []
+        jitter = float(np.percentile(np.abs(window - self._publish_period_s), 99) * 1e3) if window.size else 0.0
+        rig = self.rig
+        values = {
+            "state": rig.state,
+            "mode": "fast" if self.fast else "real-time",
+            "sim_time_s": f"{sim:.6f}",
+            "real_time_factor": f"{rtf:.4f}",
+            "overruns": rig.overrun_count,
+            "rejected_commands": rig.rejected_count,
+            "last_rejection": rig.last_rejection,
+            "abort_reason": rig.abort_reason,
+            "aborts": rig.abort_count,
+            "airspeed_setpoint_mps": f"{rig.actuator.setpoint_mps:.4f}",
+            "airspeed_mps": f"{rig.actuator.airspeed_mps:.4f}",
+            "tick_jitter_p99_ms": f"{jitter:.3f}",
+            "physics_dt_s": f"{self.dt_s:.9g}",
+            "sink_errors": rig.sink_errors,
+        }
+        message = f"{rig.state}" + (f": {rig.abort_reason}" if rig.state == ABORTED else "")
+        self._publish(self.pub_diag, messages.diagnostics_msg(sim, rig.state == ABORTED, message, values), sim, "reliable")
+
+    def close(self) -> None:
+        """Close sinks and recorders (idempotent)."""
+        self.rig.close()
+        for rec in self._recorders:
+            try:
+                rec.close()
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"closing the recording failed: {exc}")
+        self._recorders.clear()
+
+
+def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
+    """Run the node until ``should_stop()``: timers in real-time mode, a stepping loop in fast mode."""
+    while not should_stop() and rclpy.ok(context=node.context):
+        node.apply_pending()
+        if node.fast:
+            node.fast_iteration()
+            executor.spin_once(timeout_sec=0.0)
+        else:
+            executor.spin_once(timeout_sec=0.05)
+
+
+def _split_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """(own args, ROS args) around ``--ros-args``."""
+    argv = list(argv)
+    if "--ros-args" in argv:
+        i = argv.index("--ros-args")
+        return argv[:i], argv[i:]
+    return argv, []
+
+
+def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None) -> int:
+    """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name. Returns an exit code.
+
+    Own options before ``--ros-args``: ``--fast``, ``--params FILE`` (shorthand for ``--params-file``).
+    """
+    import argparse
+
+    own, ros_args = _split_args(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="rig_node", description="panel_rig emulated wind tunnel node")
+    parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
+    parser.add_argument("--params", action="append", default=[], help="ROS 2 parameters file (repeatable)")
+    opts = parser.parse_args(own)
+    extra: list[str] = []
+    for path in opts.params:
+        extra += ["--params-file", path]
+    if opts.fast:
+        extra += ["-p", "fast:=true"]
+    if extra:
+        ros_args = (ros_args or ["--ros-args"]) + extra
+
+    stop = threading.Event()
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    rclpy.init(args=["rig_node", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    for s in previous:
+        signal.signal(s, on_signal)
+    node: RigNode | None = None
+    code = 0
+    try:
+        node = RigNode(stepper_factory=stepper_factory)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin(node, executor, stop.is_set)
+        node.get_logger().info(f"stopping: {node.stats()}")
+    except StartupError as exc:
+        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
+        logger.error(str(exc))
+        print(f"rig_node: {exc}", file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,311 @@
+"""Scripted operator: plays a YAML profile against a running rig node and prints a summary.
+
+Profile (a list, or ``{steps: [...]}``), times in the rig's simulated time (so fast mode works)::
+
+    - airspeed: 8.0                      # set-point, m/s
+    - ramp: {to: 12.0, rate_mps2: 0.5}   # set-point ramp
+    - dwell_s: 10.0                      # wait 10 s of rig time
+    - shaker: {amplitude: 0.5, frequency_hz: 12.0}
+    - force: 0.1                         # held force, N/m
+    - abort
+    - reset
+
+Run: ``rig_operator config/staircase.yaml [--namespace /rig]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+import yaml
+from geometry_msgs.msg import PointStamped, Vector3Stamped
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class ProfileError(ValueError):
+    """A profile that cannot be played; the message names the step."""
+
+
+class RigUnavailable(RuntimeError):
+    """The rig does not answer (no readings, no service) within the timeout."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One profile step: kind and its argument."""
+
+    kind: str
+    arg: Any = None
+
+    def describe(self) -> str:
+        return self.kind if self.arg is None else f"{self.kind} {self.arg}"
+
+
+@dataclass
+class StepSummary:
+    """What happened during one step (rig time, commanded and measured airspeed, tip motion)."""
+
+    index: int
+    step: str
+    t_start_s: float
+    t_end_s: float = math.nan
+    commanded_mps: float = math.nan
+    measured_mps: float = math.nan
+    tip_rms_m: float = math.nan
+    tip_freq_hz: float = math.nan
+    note: str = ""
+    samples: list[tuple[float, float]] = field(default_factory=list, repr=False)
+
+
+def _number(i: int, key: str, v: Any, lo: float = -math.inf) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < lo:
+        raise ProfileError(f"step {i + 1} ({key}): expected a finite number >= {lo:g}, got {v!r}")
+    return float(v)
+
+
+def parse_profile(doc: Any) -> list[Step]:
+    """Validate a loaded YAML profile into steps."""
+    if isinstance(doc, dict) and "steps" in doc:
+        doc = doc["steps"]
+    if not isinstance(doc, list) or not doc:
+        raise ProfileError("a profile is a non-empty list of steps (or {steps: [...]})")
+    steps: list[Step] = []
+    for i, item in enumerate(doc):
+        if isinstance(item, str) and item in ("abort", "reset"):
+            steps.append(Step(item))
+            continue
+        if not isinstance(item, dict) or len(item) != 1:
+            raise ProfileError(f"step {i + 1}: expected one of {KINDS} as a one-key mapping, got {item!r}")
+        ((kind, arg),) = item.items()
+        if kind in ("airspeed", "force"):
+            steps.append(Step(kind, _number(i, kind, arg, 0.0 if kind == "airspeed" else -math.inf)))
+        elif kind == "dwell_s":
+            steps.append(Step(kind, _number(i, kind, arg, 0.0)))
+        elif kind == "ramp":
+            if not isinstance(arg, dict) or set(arg) != {"to", "rate_mps2"}:
+                raise ProfileError(f"step {i + 1}: ramp needs {{to: V, rate_mps2: r}}, got {arg!r}")
+            rate = _number(i, "ramp.rate_mps2", arg["rate_mps2"], 0.0)
+            if rate == 0:
+                raise ProfileError(f"step {i + 1}: ramp.rate_mps2 must be > 0")
+            steps.append(Step(kind, {"to": _number(i, "ramp.to", arg["to"], 0.0), "rate_mps2": rate}))
+        elif kind == "shaker":
+            if not isinstance(arg, dict) or not set(arg) <= {"amplitude", "frequency_hz"} or not arg:
+                raise ProfileError(f"step {i + 1}: shaker needs {{amplitude: A, frequency_hz: f}}, got {arg!r}")
+            steps.append(Step(kind, {k: _number(i, f"shaker.{k}", v, 0.0) for k, v in arg.items()}))
+        elif kind in ("abort", "reset") and arg is None:
+            steps.append(Step(kind))
+        else:
+            raise ProfileError(f"step {i + 1}: unknown step {kind!r} (known: {', '.join(KINDS)})")
+    return steps
+
+
+def load_profile(path: str | Path) -> list[Step]:
+    """Read and validate a profile file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ProfileError(f"profile not found: {p}")
+    try:
+        return parse_profile(yaml.safe_load(p.read_text()))
+    except yaml.YAMLError as exc:
+        raise ProfileError(f"{p}: malformed YAML ({exc})") from None
+
+
+def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """(RMS about the mean, frequency from mean-crossings) of the second half of (t, w) samples."""
+    if len(samples) < 8:
+        return math.nan, math.nan
+    arr = np.asarray(samples, dtype=float)
+    arr = arr[np.argsort(arr[:, 0])]
+    arr = arr[arr[:, 0] >= arr[0, 0] + 0.5 * (arr[-1, 0] - arr[0, 0])]
+    t, w = arr[:, 0], arr[:, 1] - arr[:, 1].mean()
+    rms = float(np.sqrt(np.mean(w**2)))
+    ups = np.nonzero((w[:-1] < 0) & (w[1:] >= 0))[0]
+    freq = (len(ups) - 1) / (t[ups[-1]] - t[ups[0]]) if len(ups) >= 3 and t[ups[-1]] > t[ups[0]] else math.nan
+    return rms, float(freq)
+
+
+class Operator(Node):
+    """The rig's operator console: command publishers, reading subscriptions, service clients."""
+
+    def __init__(self, namespace: str = "/rig", timeout_s: float = 10.0) -> None:
+        super().__init__("panel_rig_operator", namespace=namespace)
+        self.timeout_s = timeout_s
+        self.time_s = math.nan
+        self.airspeed_mps = math.nan
+        self._last_msg_wall = time.monotonic()
+        self._samples: list[tuple[float, float]] | None = None
+        self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
+        self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
+        self.pubs = {
+            name: self.create_publisher(Float64, topic, COMMAND_QOS)
+            for name, topic in (
+                ("airspeed", "airspeed_cmd"),
+                ("force", "shaker/force_cmd"),
+                ("amplitude", "shaker/amplitude_cmd"),
+                ("frequency", "shaker/frequency_cmd"),
+            )
+        }
+        self.clients_ = {name: self.create_client(Trigger, name) for name in ("reset", "abort")}
+        self.commanded_mps = 0.0
+
+    def _on_airspeed(self, msg: Vector3Stamped) -> None:
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if math.isnan(self.time_s) or t > self.time_s:
+            self.time_s = t
+            self.airspeed_mps = msg.vector.x
+        self._last_msg_wall = time.monotonic()
+
+    def _on_tip(self, msg: PointStamped) -> None:
+        if self._samples is not None:
+            self._samples.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.point.z))
+
+    def _spin(self, timeout_s: float = 0.05) -> None:
+        rclpy.spin_once(self, timeout_sec=timeout_s)
+        if time.monotonic() - self._last_msg_wall > self.timeout_s:
+            raise RigUnavailable(f"no readings from the rig for {self.timeout_s:g} s")
+
+    def wait_for_rig(self) -> None:
+        """Until the rig publishes and every command topic has a subscriber."""
+        self._last_msg_wall = time.monotonic()
+        while math.isnan(self.time_s) or any(p.get_subscription_count() == 0 for p in self.pubs.values()):
+            self._spin(0.1)
+
+    def send(self, name: str, value: float) -> None:
+        self.pubs[name].publish(Float64(data=float(value)))
+        if name == "airspeed":
+            self.commanded_mps = float(value)
+
+    def call(self, name: str) -> str:
+        client = self.clients_[name]
+        if not client.wait_for_service(timeout_sec=self.timeout_s):
+            raise RigUnavailable(f"service {name} not available")
+        future = client.call_async(Trigger.Request())
+        deadline = time.monotonic() + self.timeout_s
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise RigUnavailable(f"service {name} did not answer")
+            self._spin(0.05)
+        return future.result().message
+
+    def wait_until(self, t_s: float) -> None:
+        """Until the rig's simulated time reaches t_s."""
+        while self.time_s < t_s:
+            self._spin(0.05)
+
+    def play(self, steps: Sequence[Step]) -> list[StepSummary]:
+        """Play the steps; returns one summary per step."""
+        self.wait_for_rig()
+        out: list[StepSummary] = []
+        for i, step in enumerate(steps):
+            s = StepSummary(i + 1, step.describe(), self.time_s)
+            self._samples = s.samples
+            if step.kind == "airspeed":
+                self.send("airspeed", step.arg)
+            elif step.kind == "force":
+                self.send("force", step.arg)
+            elif step.kind == "shaker":
+                if "frequency_hz" in step.arg:
+                    self.send("frequency", step.arg["frequency_hz"])
+                if "amplitude" in step.arg:
+                    self.send("amplitude", step.arg["amplitude"])
+            elif step.kind == "dwell_s":
+                self.wait_until(s.t_start_s + step.arg)
+            elif step.kind == "ramp":
+                self._ramp(step.arg["to"], step.arg["rate_mps2"])
+            else:
+                s.note = self.call(step.kind)
+                if step.kind in ("abort", "reset"):
+                    self.commanded_mps = 0.0
+            for _ in range(3):  # let commands go out and the last readings come in
+                rclpy.spin_once(self, timeout_sec=0.0)
+            s.t_end_s, s.commanded_mps, s.measured_mps = self.time_s, self.commanded_mps, self.airspeed_mps
+            s.tip_rms_m, s.tip_freq_hz = tip_metrics(s.samples)
+            out.append(s)
+            self.get_logger().info(
+                f"step {s.index}: {s.step} t = {s.t_end_s:.2f} s U = {s.measured_mps:.2f} m/s", throttle_duration_sec=0.0
+            )
+        self._samples = None
+        return out
+
+    def _ramp(self, to_mps: float, rate_mps2: float) -> None:
+        start, t0 = self.commanded_mps, self.time_s
+        duration = abs(to_mps - start) / rate_mps2
+        last = -math.inf
+        while True:
+            frac = min(1.0, (self.time_s - t0) / duration) if duration > 0 else 1.0
+            if frac >= 1.0 or self.time_s - last >= 0.05:
+                self.send("airspeed", start + frac * (to_mps - start))
+                last = self.time_s
+            if frac >= 1.0:
+                return
+            self._spin(0.02)
+
+
+def format_summary(summary: Sequence[StepSummary]) -> str:
+    """A plain table: per step rig time, commanded/measured airspeed, tip RMS (mm) and frequency."""
+    lines = [f"{'#':>3} {'step':<34} {'t_end_s':>8} {'U_cmd':>6} {'U_meas':>6} {'tip_rms_mm':>10} {'f_Hz':>6}"]
+
+    def num(x: float, width: int, digits: int) -> str:
+        return f"{x:>{width}.{digits}f}" if math.isfinite(x) else f"{'-':>{width}}"
+
+    for s in summary:
+        lines.append(
+            f"{s.index:>3} {s.step[:34]:<34} {num(s.t_end_s, 8, 2)} {num(s.commanded_mps, 6, 2)} "
+            f"{num(s.measured_mps, 6, 2)} {num(s.tip_rms_m * 1e3, 10, 3)} {num(s.tip_freq_hz, 6, 2)}"
+            + (f"  {s.note}" if s.note else "")
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if "--ros-args" in args:
+        i = args.index("--ros-args")
+        args, ros_args = args[:i], args[i:]
+    parser = argparse.ArgumentParser(prog="rig_operator", description="play a profile against the panel_rig node")
+    parser.add_argument("profile", help="YAML profile (see config/staircase.yaml)")
+    parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
+    parser.add_argument("--timeout", type=float, default=10.0, help="wall seconds without readings = failure")
+    opts = parser.parse_args(args)
+    try:
+        steps = load_profile(opts.profile)
+    except ProfileError as exc:
+        print(f"rig_operator: {exc}", file=sys.stderr)
+        return 2
+    rclpy.init(args=["rig_operator", *ros_args])
+    node = Operator(opts.namespace, opts.timeout)
+    code = 0
+    try:
+        summary = node.play(steps)
+        print(format_summary(summary))
+    except RigUnavailable as exc:
+        print(f"rig_operator: {exc}", file=sys.stderr)
+        code = 1
+    except KeyboardInterrupt:
+        code = 130
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
