@@ -1,0 +1,18 @@
+"""rosbag2-compatible MCAP recording: writer, reader and crash recovery."""
+
+from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.reader import find_mcap, has_summary, read_bag, topic_counts
+from panel_rig.recording.recover import RecoverReport, main_bag_recover, recover_bag
+from panel_rig.recording.writer import BagWriter
+
+__all__ = [
+    "BagWriter",
+    "RecordingError",
+    "RecoverReport",
+    "find_mcap",
+    "has_summary",
+    "main_bag_recover",
+    "read_bag",
+    "recover_bag",
+    "topic_counts",
+]

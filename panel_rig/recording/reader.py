@@ -1,0 +1,75 @@
+"""Reading bags written by `BagWriter` (or rosbag2): decoded messages, counts, integrity."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.metadata import METADATA_FILE, read_metadata
+
+
+def find_mcap(bag_dir: Path) -> Path:
+    """The bag's MCAP file: from metadata.yaml if present, else the single `*.mcap` in the dir."""
+    bag_dir = Path(bag_dir)
+    if not bag_dir.is_dir():
+        raise RecordingError(f"{bag_dir} is not a bag directory")
+    if (bag_dir / METADATA_FILE).is_file():
+        files = read_metadata(bag_dir).get("relative_file_paths") or []
+        if files and (bag_dir / files[0]).is_file():
+            return bag_dir / files[0]
+    candidates = sorted(bag_dir.glob("*.mcap"))
+    if len(candidates) != 1:
+        raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}")
+    return candidates[0]
+
+
+def has_summary(mcap_path: Path) -> bool:
+    """True if the MCAP file is complete (footer and summary readable)."""
+    try:
+        with open(mcap_path, "rb") as f:
+            return make_reader(f).get_summary() is not None
+    except (McapError, OSError, ValueError, EOFError, IndexError):
+        return False
+    except Exception:  # noqa: BLE001 - a truncated file can fail in struct/parse code
+        return False
+
+
+def read_bag(
+    bag_dir: Path, topics: list[str] | None = None
+) -> Iterator[tuple[str, str, int, Any]]:
+    """Yield (topic, type, stamp_ns, decoded message) in log-time order (mcap-ros2 decoder)."""
+    from mcap_ros2.reader import read_ros2_messages
+
+    path = find_mcap(bag_dir)
+    try:
+        for m in read_ros2_messages(str(path), topics=topics):
+            yield m.channel.topic, m.schema.name, m.log_time_ns, m.ros_msg
+    except McapError as exc:
+        raise RecordingError(f"cannot read {path}: {exc}") from None
+
+
+def topic_counts(bag_dir: Path) -> dict[str, int]:
+    """Messages per topic, counted by decoding every message."""
+    return dict(Counter(topic for topic, _, _, _ in read_bag(bag_dir)))
+
+
+def summary_counts(mcap_path: Path) -> dict[str, int]:
+    """Messages per topic from the MCAP summary statistics (no decoding)."""
+    with open(mcap_path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None or summary.statistics is None:
+        raise RecordingError(f"{mcap_path} has no summary statistics")
+    counts = summary.statistics.channel_message_counts
+    return {ch.topic: counts.get(cid, 0) for cid, ch in summary.channels.items()}
+
+
+def read_metadata_records(mcap_path: Path) -> dict[str, dict[str, str]]:
+    """MCAP metadata records by name (e.g. `panel_rig/parameters`)."""
+    with open(mcap_path, "rb") as f:
+        return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}

@@ -1,0 +1,287 @@
+"""`BagWriter`: a rosbag2-compatible (Jazzy, MCAP storage) bag written from rclpy messages."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO, Self
+
+import mcap
+from mcap.writer import CompressionType, Writer
+
+from panel_rig.recording import schemas
+from panel_rig.recording.cdr import trim_trailing_padding
+from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.metadata import (
+    BagSummary,
+    TopicInfo,
+    dump_metadata,
+    write_metadata,
+)
+from panel_rig.recording.qos import offered_qos, qos_yaml
+
+PROFILE = "ros2"
+LIBRARY = f"panel_rig recorder (rosbag2-compatible); mcap-python {mcap.__version__}"
+MESSAGE_ENCODING = "cdr"
+PARAMETERS_RECORD = "panel_rig/parameters"
+PARAMETERS_KEY = "panel_rig.parameters"
+
+
+def _serialize(msg: Any) -> bytes:
+    from rclpy.serialization import serialize_message
+
+    return serialize_message(msg)
+
+
+class _Channel:
+    """A registered topic: MCAP channel id, type, schema text and running sequence number."""
+
+    __slots__ = ("channel_id", "info", "schema", "sequence")
+
+    def __init__(self, channel_id: int, info: TopicInfo, schema: str) -> None:
+        self.channel_id = channel_id
+        self.info = info
+        self.schema = schema
+        self.sequence = 0
+
+
+def _prepare_dir(bag_dir: Path) -> Path:
+    """Create the bag directory; refuse a non-empty existing one or one we cannot write."""
+    bag_dir = Path(bag_dir)
+    if bag_dir.exists():
+        if not bag_dir.is_dir():
+            raise RecordingError(f"bag path {bag_dir} exists and is not a directory")
+        if any(bag_dir.iterdir()):
+            raise RecordingError(f"bag directory {bag_dir} already exists and is not empty")
+    try:
+        bag_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"cannot create bag directory {bag_dir}: {exc.strerror or exc}") from None
+    return bag_dir
+
+
+class BagWriter:
+    """Write rclpy messages into `bag_dir/<name>_0.mcap` and, on close, `metadata.yaml`.
+
+    Chunks of about `chunk_size_bytes` (no compression); everything buffered is flushed to the OS
+    at least every `flush_period_s` (on the next write, or by a background flusher when idle), so
+    a SIGKILL loses at most about one flush period. Thread-safe. Writes after `close()` are
+    dropped and counted in `dropped_after_close` (shutdown races in callbacks must not crash).
+    """
+
+    def __init__(
+        self,
+        bag_dir: Path,
+        *,
+        chunk_size_bytes: int = 64 * 1024,
+        flush_period_s: float = 0.5,
+    ) -> None:
+        if chunk_size_bytes <= 0 or not flush_period_s > 0:
+            raise RecordingError("chunk_size_bytes and flush_period_s must be positive")
+        self.bag_dir = _prepare_dir(Path(bag_dir))
+        self.mcap_path = self.bag_dir / f"{self.bag_dir.name}_0.mcap"
+        self.flush_period_s = float(flush_period_s)
+        self.dropped_after_close = 0
+        self._lock = threading.Lock()
+        self._owner: int | None = None  # thread id inside the critical section
+        self._close_requested = False
+        self._closed = False
+        self._dirty = False
+        self._last_flush_s = time.monotonic()
+        self._channels: dict[str, _Channel] = {}
+        self._schema_ids: dict[str, int] = {}
+        self._summary = BagSummary(file_name=self.mcap_path.name)
+        self._stream = self._open_stream()
+        self._writer = Writer(
+            self._stream, chunk_size=chunk_size_bytes, compression=CompressionType.NONE
+        )
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._stream.flush()
+        self._stop = threading.Event()
+        self._flusher = threading.Thread(
+            target=self._flush_loop, name=f"bag-flush-{self.bag_dir.name}", daemon=True
+        )
+        self._flusher.start()
+
+    # ----------------------------------------------------------------- public API
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def message_count(self) -> int:
+        return self._summary.message_count
+
+    def topic_counts(self) -> dict[str, int]:
+        """Messages written so far per topic."""
+        return {t.name: t.message_count for t in self._summary.topics}
+
+    def write(self, topic: str, msg: Any, stamp_ns: int, *, qos: str = "sensor") -> bool:
+        """Record `msg` on `topic` at `stamp_ns` (log and publish time). False if closed."""
+        if not isinstance(topic, str) or not topic.startswith("/") or len(topic) < 2:
+            raise RecordingError(f"topic must be an absolute ROS name like '/rig/x', got {topic!r}")
+        if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
+            raise RecordingError(f"stamp_ns must be a non-negative int, got {stamp_ns!r}")
+        with self._critical():
+            if self._closed:
+                self.dropped_after_close += 1
+                return False
+            channel = self._channel(topic, msg, qos)
+            data = trim_trailing_padding(channel.info.type, channel.schema, msg, _serialize(msg))
+            self._writer.add_message(
+                channel.channel_id, log_time=stamp_ns, data=data,
+                publish_time=stamp_ns, sequence=channel.sequence,
+            )
+            channel.sequence += 1
+            channel.info.message_count += 1
+            self._summary.note_stamp(stamp_ns)
+            self._dirty = True
+            if time.monotonic() - self._last_flush_s >= self.flush_period_s:
+                self._flush_locked()
+        return True
+
+    def write_parameters(self, params: dict[str, Any]) -> None:
+        """Record run parameters: MCAP metadata `panel_rig/parameters` + metadata.yaml custom_data.
+
+        Values are stored as JSON text (non-JSON values via `str`).
+        """
+        if not isinstance(params, dict):
+            raise RecordingError(f"parameters must be a dict, got {type(params).__name__}")
+        record = {str(k): json.dumps(v, default=str) for k, v in params.items()}
+        with self._critical():
+            if self._closed:
+                raise RecordingError("bag is closed")
+            self._writer.add_metadata(PARAMETERS_RECORD, record)
+            self._summary.custom_data[PARAMETERS_KEY] = json.dumps(
+                params, default=str, sort_keys=True
+            )
+            self._dirty = True
+
+    def flush(self) -> None:
+        """Finish the open chunk and hand everything to the OS now."""
+        with self._critical():
+            if not self._closed:
+                self._flush_locked()
+
+    def close(self) -> None:
+        """Finish the MCAP (summary, footer) and write metadata.yaml. Idempotent.
+
+        Safe from a signal handler: if the signal interrupted this same thread inside `write`,
+        the close is deferred to the end of that call instead of deadlocking. The handler should
+        call `close()` and return (let the main loop see `closed` and stop) rather than raise,
+        so that an interrupted write completes before the file is finished.
+        """
+        if self._closed:
+            return
+        if self._owner == threading.get_ident():
+            self._close_requested = True
+            return
+        with self._critical():
+            self._close_locked()
+        self._stop.set()
+        if self._flusher is not threading.current_thread():
+            self._flusher.join(timeout=2.0)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _open_stream(self) -> BinaryIO:
+        try:
+            return open(self.mcap_path, "xb")
+        except OSError as exc:
+            raise RecordingError(f"cannot create {self.mcap_path}: {exc.strerror or exc}") from None
+
+    class _Critical:
+        def __init__(self, owner: BagWriter) -> None:
+            self.owner = owner
+
+        def __enter__(self) -> None:
+            self.owner._lock.acquire()
+            self.owner._owner = threading.get_ident()
+
+        def __exit__(self, *exc: object) -> None:
+            owner = self.owner
+            try:
+                if owner._close_requested and not owner._closed:
+                    owner._close_locked()
+            finally:
+                owner._owner = None
+                owner._lock.release()
+            if owner._closed:
+                owner._stop.set()
+
+    def _critical(self) -> BagWriter._Critical:
+        return BagWriter._Critical(self)
+
+    def _channel(self, topic: str, msg: Any, qos: str) -> _Channel:
+        type_name = schemas.type_name_of(msg)
+        channel = self._channels.get(topic)
+        if channel is not None:
+            if channel.info.type != type_name:
+                raise RecordingError(
+                    f"topic {topic} was recorded as {channel.info.type}, not {type_name}"
+                )
+            return channel
+        profiles = offered_qos(qos)
+        schema = schemas.schema_text(type_name)
+        info = TopicInfo(topic, type_name, profiles, schemas.type_hash(type_name))
+        schema_id = self._schema_ids.get(type_name)
+        if schema_id is None:
+            schema_id = self._writer.register_schema(
+                type_name, schemas.SCHEMA_ENCODING, schema.encode("utf-8")
+            )
+            self._schema_ids[type_name] = schema_id
+        channel_id = self._writer.register_channel(
+            topic, MESSAGE_ENCODING, schema_id,
+            {"offered_qos_profiles": qos_yaml(profiles), "topic_type_hash": info.type_description_hash},
+        )
+        channel = _Channel(channel_id, info, schema)
+        self._channels[topic] = channel
+        self._summary.topics.append(info)
+        return channel
+
+    def _flush_locked(self) -> None:
+        try:
+            self._writer.flush()
+        except OSError as exc:
+            raise RecordingError(f"cannot write {self.mcap_path}: {exc.strerror or exc}") from None
+        self._dirty = False
+        self._last_flush_s = time.monotonic()
+
+    def _close_locked(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.add_metadata("rosbag2", {"serialized_metadata": dump_metadata(self._summary)})
+            self._writer.finish()
+            self._stream.close()
+        except OSError as exc:
+            raise RecordingError(f"cannot finish {self.mcap_path}: {exc.strerror or exc}") from None
+        write_metadata(self.bag_dir, self._summary)
+
+    def _flush_loop(self) -> None:
+        while not self._stop.wait(self.flush_period_s):
+            if not self._lock.acquire(timeout=self.flush_period_s):
+                continue
+            try:
+                if not self._closed and self._dirty and (
+                    time.monotonic() - self._last_flush_s >= self.flush_period_s * 0.9
+                ):
+                    self._flush_locked()
+            except RecordingError:
+                return
+            finally:
+                self._lock.release()

@@ -1,0 +1,191 @@
+"""`RerunLogger`: the rig's time series and panel shape in Rerun (live viewer or `.rrd` file).
+
+Uses its own `rr.RecordingStream` (never the global one), so several loggers can coexist.
+All data is on the duration timeline `sim_time` (simulated seconds).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from panel_rig.rig.reading import Reading
+
+MODES = ("off", "save", "connect")
+TIMELINE = "sim_time"
+TIP = "tip/w_over_L"
+AIRSPEED = "airspeed/mps"
+FORCE = "shaker/force_npm"
+SHAPE = "panel/shape"
+DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+
+class VizError(RuntimeError):
+    """The Rerun sink cannot be set up; the message says why."""
+
+
+def modal_entity(i: int) -> str:
+    """Entity path of modal coordinate q_i (1-based)."""
+    return f"modal/q{i}"
+
+
+def blueprint(n_modes: int) -> Any:
+    """Default layout: tip, modal, airspeed+shaker time series and the panel shape in 3-D."""
+    import rerun.blueprint as rrb
+
+    series = rrb.Vertical(
+        rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L"),
+        rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}"),
+        rrb.TimeSeriesView(
+            origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)"
+        ),
+    )
+    # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
+    eye = rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital, position=[0.35, -2.5, 0.3], look_target=[0.35, 0.0, 0.0],
+        eye_up=[0.0, 0.0, 1.0],
+    )
+    shape = rrb.Spatial3DView(origin="panel", name="Panel shape (x chord, z deflection)", eye_controls=eye)
+    return rrb.Blueprint(rrb.Horizontal(series, shape, column_shares=[3, 2]), collapse_panels=True)
+
+
+class RerunLogger:
+    """Log readings, batches and panel shapes to Rerun. Mode "off" does nothing at all."""
+
+    def __init__(
+        self,
+        n_modes: int,
+        *,
+        mode: str,
+        target: str | None,
+        application_id: str = "panel_rig",
+        recording_name: str | None = None,
+    ) -> None:
+        if mode not in MODES:
+            raise VizError(f"rerun mode must be one of {MODES}, got {mode!r}")
+        if not isinstance(n_modes, int) or n_modes < 1:
+            raise VizError(f"n_modes must be a positive int, got {n_modes!r}")
+        self.n_modes = n_modes
+        self.mode = mode
+        self.target = target
+        self._rec: Any = None
+        if mode == "off":
+            return
+        import rerun as rr
+
+        self._rr = rr
+        rec = rr.RecordingStream(application_id, send_properties=True)
+        bp = blueprint(n_modes)
+        if mode == "save":
+            rec.save(self._save_path(target), default_blueprint=bp)
+        else:
+            try:
+                rec.connect_grpc(target or DEFAULT_GRPC_URL, default_blueprint=bp)
+            except Exception as exc:  # noqa: BLE001 - rerun raises various types for bad URLs
+                raise VizError(f"cannot connect to Rerun viewer at {target}: {exc}") from None
+        if recording_name:
+            rec.send_recording_name(recording_name)
+        self._rec = rec
+        self._log_styles()
+
+    # ----------------------------------------------------------------- public API
+    @property
+    def enabled(self) -> bool:
+        return self._rec is not None
+
+    def log_reading(self, reading: Reading) -> None:
+        """Log one rig sample at `reading.time_s`."""
+        if self._rec is None:
+            return
+        rr, rec = self._rr, self._rec
+        rec.set_time(TIMELINE, duration=float(reading.time_s))
+        rec.log(TIP, rr.Scalars(float(reading.tip_w_over_L)))
+        for i, value in enumerate(np.asarray(reading.q, dtype=float)[: self.n_modes], start=1):
+            rec.log(modal_entity(i), rr.Scalars(float(value)))
+        rec.log(AIRSPEED, rr.Scalars(float(reading.airspeed_mps)))
+        rec.log(FORCE, rr.Scalars(float(reading.shaker_force_npm)))
+
+    def log_batch(
+        self,
+        times_s: np.ndarray,
+        tip: np.ndarray,
+        q: np.ndarray,
+        airspeed: np.ndarray,
+        force: np.ndarray,
+    ) -> None:
+        """Log N samples at once (columnar). `q` has shape (N, n_modes); the rest shape (N,)."""
+        if self._rec is None:
+            return
+        times = np.asarray(times_s, dtype=float).reshape(-1)
+        n = times.size
+        q_arr = np.asarray(q, dtype=float).reshape(n, -1) if n else np.zeros((0, self.n_modes))
+        columns = {TIP: tip, AIRSPEED: airspeed, FORCE: force}
+        for name, values in columns.items():
+            if np.asarray(values).reshape(-1).size != n:
+                raise VizError(f"log_batch: {name} has {np.asarray(values).size} samples, expected {n}")
+        if n == 0:
+            return
+        for i in range(min(self.n_modes, q_arr.shape[1])):
+            columns[modal_entity(i + 1)] = q_arr[:, i]
+        index = [self._rr.TimeColumn(TIMELINE, duration=times)]
+        for entity, values in columns.items():
+            data = np.asarray(values, dtype=float).reshape(-1)
+            self._rec.send_columns(entity, indexes=index, columns=self._rr.Scalars.columns(scalars=data))
+
+    def log_shape(self, time_s: float, x_m: np.ndarray, z_m: np.ndarray) -> None:
+        """Log the deflected airfoil+panel line (x along chord, z deflection, y = 0) as one strip."""
+        if self._rec is None:
+            return
+        x = np.asarray(x_m, dtype=float).reshape(-1)
+        z = np.asarray(z_m, dtype=float).reshape(-1)
+        if x.size != z.size:
+            raise VizError(f"log_shape: x has {x.size} points, z has {z.size}")
+        points = np.column_stack([x, np.zeros_like(x), z])
+        self._rec.set_time(TIMELINE, duration=float(time_s))
+        self._rec.log(SHAPE, self._rr.LineStrips3D([points]))
+
+    # Sink protocol (panel_rig.rig.reading.Sink)
+    def on_reading(self, reading: Reading) -> None:
+        self.log_reading(reading)
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        """Accepted commands become scalars under `commands/<name>`."""
+        if self._rec is None or not accepted:
+            return
+        self._rec.set_time(TIMELINE, duration=float(time_s))
+        self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
+
+    def close(self) -> None:
+        """Flush everything; the logger is disabled afterwards. Idempotent."""
+        rec, self._rec = self._rec, None
+        if rec is None:
+            return
+        rec.flush()
+        rec.disconnect()
+
+    # ------------------------------------------------------------------ internals
+    @staticmethod
+    def _save_path(target: str | None) -> str:
+        if not target:
+            raise VizError('rerun mode "save" needs a target .rrd path')
+        path = Path(target)
+        if not path.parent.is_dir():
+            raise VizError(f"cannot save Rerun recording: directory {path.parent} does not exist")
+        return str(path)
+
+    def _log_styles(self) -> None:
+        rr, rec = self._rr, self._rec
+        styles = {
+            TIP: ("w/L", [31, 119, 180]),
+            AIRSPEED: ("airspeed m/s", [44, 160, 44]),
+            FORCE: ("shaker N/m", [214, 39, 40]),
+        }
+        palette = [[255, 127, 14], [148, 103, 189], [140, 86, 75], [227, 119, 194], [23, 190, 207]]
+        for i in range(1, self.n_modes + 1):
+            styles[modal_entity(i)] = (f"q{i}", palette[(i - 1) % len(palette)])
+        rec.log("panel", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for entity, (name, color) in styles.items():
+            rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
