@@ -1,0 +1,90 @@
+"""Speed benchmarks: prints ratios (simulated seconds per wall second) and wall times.
+
+    python benchmarks/run.py [--json] [--node]
+
+One core, nonlinear `full` variant, dt = 1/2048 s, near the flutter speed (1.05 U_f).
+--node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from panel_rig.analysis.flutter import find_flutter  # noqa: E402
+from panel_rig.analysis.forced import BANDS_HZ, forced_sweep  # noqa: E402
+from panel_rig.analysis.lco import lco_sweep  # noqa: E402
+from panel_rig.config import load_config  # noqa: E402
+from panel_rig.model.aeroelastic import AeroelasticModel  # noqa: E402
+from panel_rig.model.stepper import Stepper  # noqa: E402
+
+
+def realtime_factor(stepper: Stepper, airspeed_mps: float, sim_s: float) -> float:
+    stepper.reset(q=[0.0, 1e-3, 0.0])
+    stepper.advance(16, airspeed_mps)  # compile / warm
+    stepper.reset(q=[0.0, 1e-3, 0.0])
+    n = int(sim_s / stepper.dt_s)
+    t0 = time.perf_counter()
+    stepper.advance(n, airspeed_mps)
+    return sim_s / (time.perf_counter() - t0)
+
+
+def single_step_realtime_factor(stepper: Stepper, airspeed_mps: float, n: int = 20000) -> float:
+    """As the live rig calls it: one step per call."""
+    stepper.reset(q=[0.0, 1e-3, 0.0])
+    t0 = time.perf_counter()
+    for _ in range(n):
+        stepper.step(airspeed_mps, 0.0)
+    return n * stepper.dt_s / (time.perf_counter() - t0)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--node", action="store_true", help="also run the 60 s node real-time benchmark")
+    args = ap.parse_args()
+    cfg = load_config()
+    out: dict[str, float] = {}
+    t0 = time.perf_counter()
+    model = AeroelasticModel(cfg)
+    fp = find_flutter(model, aero="full")
+    out["flutter_full_order_wall_s"] = time.perf_counter() - t0
+    u = 1.05 * fp.speed_mps
+    out["rom_realtime_factor"] = realtime_factor(Stepper(cfg, "full", "rom", model=model), u, 60.0)
+    out["full_realtime_factor"] = realtime_factor(Stepper(cfg, "full", "full", model=model), u, 30.0)
+    out["rom_single_step_realtime_factor"] = single_step_realtime_factor(Stepper(cfg, "full", "rom", model=model), u)
+    t0 = time.perf_counter()
+    lco_sweep(cfg, np.linspace(12.0, 32.0, 21) * fp.speed_mps / 12.5, 30.0, "full", model=model)
+    out["fig8_sweep_21x30s_wall_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for var in ("full", "stiffness", "inertia", "linear"):
+        for lo, hi in BANDS_HZ:
+            forced_sweep(cfg, lo, hi, 0.1, var, model=model)
+    out["forced_protocol_4x2_wall_s"] = time.perf_counter() - t0
+    try:
+        from recorder_throughput import measure as recorder
+
+        out.update(recorder())
+    except Exception as exc:  # noqa: BLE001 - the recorder extra may be absent
+        print(f"recorder benchmark skipped: {exc}", file=sys.stderr)
+    if args.node:
+        from node_realtime import measure as node
+
+        out.update(node())
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k:40s} {v:12.3f}" if isinstance(v, float) else f"{k:40s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
