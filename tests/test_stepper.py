@@ -100,3 +100,25 @@ def test_airspeed_may_change_every_step(cfg, model):
     tip = st.advance(4096, np.linspace(0.0, 8.0, 4096))
     assert np.all(np.isfinite(tip))
     assert np.max(np.abs(tip[-512:])) < np.max(np.abs(tip[:512]))
+
+
+def test_batch_form_matches_single_runs(cfg, model):
+    """BatchStepper (leading run axis) gives the single-run results bit for bit, and flags a diverging run."""
+    from panel_rig.model.stepper import BatchStepper
+
+    speeds = np.array([8.0, 11.3, 20.0])
+    template = Stepper(cfg, "inertia", "rom", model=model)
+    batch = BatchStepper(template, speeds.size)
+    batch.q[:, 1] = 1e-3
+    tips = np.concatenate([batch.advance(2048, speeds) for _ in range(10)], axis=1)
+    for k, u in enumerate(speeds):
+        st = Stepper(cfg, "inertia", "rom", model=model)
+        st.reset(q=[0.0, 1e-3, 0.0])
+        try:
+            single = st.advance(2048 * 10, u)
+        except DivergenceError:
+            assert batch.diverged[k]
+            continue
+        assert not batch.diverged[k]
+        np.testing.assert_array_equal(tips[k], single)
+    assert batch.diverged[-1] and not batch.diverged[0]

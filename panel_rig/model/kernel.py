@@ -227,3 +227,20 @@ def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off
             xi[k] = tmp_r[k]
         tip_out[step] = tip
     return OK, U_seq.shape[0]
+
+
+@njit(cache=True)
+def march_batch(q, v, xi, U_runs, F_runs, active, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a,
+                lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
+                tip_out, status_out):
+    """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps). Runs with
+    active[b] False are skipped; a run that leaves the physical range gets its status and is deactivated."""
+    for b in range(q.shape[0]):
+        if not active[b]:
+            continue
+        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off,
+                      blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec,
+                      tip_bound, tol, tip_out[b])
+        status_out[b] = st
+        if st != OK:
+            active[b] = False

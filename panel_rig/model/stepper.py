@@ -188,3 +188,42 @@ class Stepper:
     def step(self, airspeed_mps: float, tip_force_npm: float = 0.0) -> None:
         """One physics step dt with these inputs."""
         self.advance(1, airspeed_mps, tip_force_npm)
+
+
+class BatchStepper:
+    """Many independent runs of one model advanced together (leading axis = run), for sweeps.
+
+    A run that diverges is frozen at its last good state and flagged in ``diverged``; the others go on.
+    """
+
+    def __init__(self, template: Stepper, n_runs: int):
+        self.t = template
+        n, r = template.n_modes, template.xi.shape[0]
+        self.q = np.zeros((n_runs, n))
+        self.qdot = np.zeros((n_runs, n))
+        self.xi = np.zeros((n_runs, r))
+        self.active = np.ones(n_runs, dtype=np.bool_)
+        self.status = np.zeros(n_runs, dtype=np.int64)
+        self.time_s = 0.0
+
+    @property
+    def diverged(self) -> np.ndarray:
+        return self.status != kernel.OK
+
+    def advance(self, n_steps: int, airspeed_mps: np.ndarray, tip_force_npm: np.ndarray | float = 0.0) -> np.ndarray:
+        """Advance every active run n_steps with per-run (B,) or per-run-per-step (B, n_steps) inputs.
+        Returns tip w/L (B, n_steps); entries after a run's divergence are NaN."""
+        B = self.q.shape[0]
+        U = np.ascontiguousarray(np.broadcast_to(np.asarray(airspeed_mps, float).reshape(B, -1), (B, n_steps)))
+        F = np.ascontiguousarray(np.broadcast_to(np.asarray(tip_force_npm, float).reshape(-1, 1) if np.ndim(
+            tip_force_npm) < 2 else tip_force_npm, (B, n_steps)))
+        if not (np.all(np.isfinite(U)) and np.all(U >= 0) and np.all(np.isfinite(F))):
+            raise ValueError("airspeed must be finite and >= 0, tip force finite")
+        tip = np.full((B, n_steps), np.nan)
+        t, m, s = self.t, self.t.mats, self.t.model.structure
+        kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, t.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka,
+                           m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl,
+                           s.stiffness_scale_n, s.modal_mass_kg, t._use_k, t._use_m, SCHEMES[t.scheme], t._f_vec,
+                           t._tip_vec, t.cfg.max_tip_w_over_L, NEWTON_TOL, tip, self.status)
+        self.time_s += n_steps * t.dt_s
+        return tip
