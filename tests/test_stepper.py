@@ -122,3 +122,14 @@ def test_batch_form_matches_single_runs(cfg, model):
         assert not batch.diverged[k]
         np.testing.assert_array_equal(tips[k], single)
     assert batch.diverged[-1] and not batch.diverged[0]
+
+
+def test_C2_lco_mode_shape_has_node_near_tip(cfg, model, u_c3):
+    """C2: the RMS of w/L along the panel has an interior node near x/L = 0.8 (tolerance 0.1)."""
+    from panel_rig.analysis.lco import rms_shape
+    from panel_rig.analysis.report import node_of
+
+    _, _, st = run_lco(cfg, u_c3, 20.0, "stiffness", model=model)
+    x = np.linspace(0, 1, 81)
+    node = node_of(x, rms_shape(st, u_c3, 1.0, x))
+    assert node is not None and abs(node - 0.8) <= 0.1, node
