@@ -48,13 +48,6 @@ def eigenvalues(model: AeroelasticModel, airspeed_mps: float, aero: str = "full"
     return Eigen(s=s, q_part=q / np.maximum(q.max(axis=0), 1e-300))
 
 
-def structural_roots(eig: Eigen, n_modes: int, max_hz: float = 200.0) -> np.ndarray:
-    """Indices of the oscillatory, structure-dominated roots (Im s > 0, q part significant)."""
-    weight = eig.q_part.max(axis=0)
-    idx = np.flatnonzero((eig.s.imag > 1e-6) & (eig.s.imag < 2 * np.pi * max_hz) & (weight > 0.0))
-    return idx
-
-
 def growth_rate(model: AeroelasticModel, airspeed_mps: float, **kw) -> float:
     """Largest real part of the eigenvalues (1/s): positive means unstable."""
     return float(np.max(eigenvalues(model, airspeed_mps, **kw).s.real))

@@ -31,7 +31,7 @@ class Coupling:
     E_vel: np.ndarray  # (km, n) m: w contribution per unit q_dot
     E_slope: np.ndarray  # (km, n): w contribution per unit U q
     Psi: np.ndarray  # (n, km): mode shapes at the load points
-    force_scale: float  # rho L dx, kg/m per ... : Q = force_scale * Psi @ [U g + dx S g_dot]
+    force_scale: float  # rho L dx, kg/m: Q = force_scale * Psi @ [U g + dx S g_dot] (Eqs. 4-5), N per m span
 
 
 def panel_modes_at(cfg: PanelConfig, x_m: np.ndarray, derivative: int = 0) -> np.ndarray:
@@ -129,8 +129,8 @@ class AeroelasticModel:
         return self._continuous[n_modes]
 
     # ---- Eq. (24)/(25): discrete-time linear systems at dt = dx / U -------------------------------
-    def _structure_rows(self, dt: float, U: float, n_aero: int):
-        """Trapezoidal structure rows (velocity and displacement), LHS/RHS blocks for (v, q)."""
+    def _structure_rows(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """D2 and -D1 of Eq. (24): trapezoidal structure rows (velocity, displacement) for (v, q)."""
         s = self.structure
         n = s.n_modes
         M, C, K = s.modal_mass_kg * np.eye(n), np.diag(s.modal_damping_kgps), np.diag(s.modal_stiffness_npm)
@@ -144,7 +144,7 @@ class AeroelasticModel:
         U, N, nb = airspeed_mps, lat.size, lat.n_body
         dt = lat.dx_m / U
         S = cumulative_sum_matrix(nb)
-        D2, D1n = self._structure_rows(dt, U, N)
+        D2, D1n = self._structure_rows(dt)
         LHS = np.zeros((N + 2 * n, N + 2 * n))
         RHS = np.zeros_like(LHS)
         LHS[:N, :N], RHS[:N, :N] = lat.A, -lat.B
@@ -165,7 +165,7 @@ class AeroelasticModel:
         dt = lat.dx_m / U
         S = cumulative_sum_matrix(nb)
         W = -np.hstack([cp.E_vel, U * cp.E_slope])  # w = W (v, q)
-        D2, D1n = self._structure_rows(dt, U, r)
+        D2, D1n = self._structure_rows(dt)
         C2 = cp.force_scale * cp.Psi @ (U / 2 * np.eye(nb) + lat.dx_m / dt * S)
         C1 = cp.force_scale * cp.Psi @ (U / 2 * np.eye(nb) - lat.dx_m / dt * S)
         Gs_b, X_b = rom.static[:nb], rom.X[:nb]
