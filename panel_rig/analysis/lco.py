@@ -10,7 +10,7 @@ import numpy as np
 from panel_rig.analysis.signals import dominant_frequency_hz, rms, steady_onset_s
 from panel_rig.config import PanelConfig
 from panel_rig.model.aeroelastic import AeroelasticModel
-from panel_rig.model.stepper import DivergenceError, Stepper
+from panel_rig.model.stepper import BatchStepper, DivergenceError, Stepper
 
 INITIAL_Q = (0.0, 1e-3, 0.0)  # small 2nd-mode disturbance that starts the flutter
 MEASURE_S = 5.0  # the metrics use the last 5 s, or the steady part if shorter
@@ -52,28 +52,50 @@ def run_lco(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant: s
             if progress:
                 progress(done / n_total)
     except DivergenceError as exc:
-        return LCOResult(airspeed_mps, float("nan"), float("nan"), float("nan"), None, True, exc.time_s), (
-            tip[:done] if keep else None), st
-    onset = steady_onset_s(tip, st.dt_s)
-    n_meas = int(round(MEASURE_S / st.dt_s))
+        return diverged_result(airspeed_mps, exc.time_s), (tip[:done] if keep else None), st
+    return lco_metrics(tip, st.dt_s, airspeed_mps), (tip if keep else None), st
+
+
+def diverged_result(airspeed_mps: float, time_s: float) -> LCOResult:
+    return LCOResult(airspeed_mps, float("nan"), float("nan"), float("nan"), None, True, time_s)
+
+
+def lco_metrics(tip: np.ndarray, dt_s: float, airspeed_mps: float) -> LCOResult:
+    """RMS, peak and dominant frequency of tip w/L over the last MEASURE_S seconds, or over the steady part
+    when it is shorter; steady_after_s from signals.steady_onset_s."""
+    onset = steady_onset_s(tip, dt_s)
+    n_meas = int(round(MEASURE_S / dt_s))
     if onset is not None:
-        n_meas = min(n_meas, n_total - int(round(onset / st.dt_s)))
+        n_meas = min(n_meas, tip.size - int(round(onset / dt_s)))
     last = tip[-max(n_meas, 16):]
-    res = LCOResult(airspeed_mps, rms(last), float(np.max(np.abs(last))), dominant_frequency_hz(last, st.dt_s),
-                    onset, False)
-    return res, (tip if keep else None), st
+    return LCOResult(airspeed_mps, rms(last), float(np.max(np.abs(last))), dominant_frequency_hz(last, dt_s),
+                     onset, False)
 
 
 def lco_sweep(cfg: PanelConfig, airspeeds_mps: np.ndarray, duration_s: float, variant: str = "full",
               aero: str = "rom", scheme: str = "implicit", model: AeroelasticModel | None = None,
               progress: Callable[[float], None] | None = None) -> list[LCOResult]:
-    """Independent fixed-airspeed runs (Fig. 8), sharing one model."""
+    """Independent fixed-airspeed runs (Fig. 8) marched together by a BatchStepper (leading run axis)."""
     model = model if model is not None else AeroelasticModel(cfg)
-    out = []
-    for i, u in enumerate(airspeeds_mps):
-        out.append(run_lco(cfg, float(u), duration_s, variant, aero, scheme, model)[0])
+    speeds = np.asarray(airspeeds_mps, dtype=float)
+    template = Stepper(cfg, variant=variant, aero=aero, scheme=scheme, model=model)
+    batch = BatchStepper(template, speeds.size)
+    batch.q[:, : len(INITIAL_Q)] = np.array(INITIAL_Q)[: template.n_modes]
+    n_total = int(round(duration_s / template.dt_s))
+    n_chunk = int(round(1.0 / template.dt_s))
+    tips = np.empty((speeds.size, n_total))
+    for start in range(0, n_total, n_chunk):
+        k = min(n_chunk, n_total - start)
+        tips[:, start : start + k] = batch.advance(k, speeds)
         if progress:
-            progress((i + 1) / len(airspeeds_mps))
+            progress((start + k) / n_total)
+    out = []
+    for b, u in enumerate(speeds):
+        if batch.diverged[b]:
+            first_nan = int(np.argmax(np.isnan(tips[b])))
+            out.append(diverged_result(float(u), first_nan * template.dt_s))
+        else:
+            out.append(lco_metrics(tips[b], template.dt_s, float(u)))
     return out
 
 
