@@ -142,9 +142,10 @@ def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off
     U_prev = -1.0
     for step in range(U_seq.shape[0]):
         U = U_seq[step]
-        la[:] = lam_a * (U / dx)
-        lb[:] = lam_b * (U / dx)
         if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
+            for k in range(la.shape[0]):
+                la[k] = lam_a[k] * (U / dx)
+                lb[k] = lam_b[k] * (U / dx)
             for j in range(n):
                 for k in range(r):
                     tmp_r[k] = Gv[k, j] + U * h * Gs[k, j]
