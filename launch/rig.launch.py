@@ -1,4 +1,8 @@
-"""Launch the panel_rig node in /rig with the paper's physics and the node parameters."""
+"""Launch the panel_rig node in /rig with the paper's physics and the node parameters.
+
+The physics file keeps its ``panel_rig:`` key (a node at the root); the node's own ``--params`` option
+applies it in the /rig namespace too. rig.yaml is keyed ``/**`` and is passed as a normal params file.
+"""
 
 import os
 
@@ -18,10 +22,8 @@ def generate_launch_description() -> LaunchDescription:
                 name="panel_rig",
                 namespace="rig",
                 output="screen",
-                parameters=[
-                    os.path.join(config, "tang_dowell_2002.yaml"),
-                    os.path.join(config, "rig.yaml"),
-                ],
+                arguments=["--params", os.path.join(config, "tang_dowell_2002.yaml")],
+                parameters=[os.path.join(config, "rig.yaml")],
             )
         ]
     )

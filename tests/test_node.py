@@ -48,6 +48,7 @@ REAL_STEPPER = importlib.util.find_spec("panel_rig.model.stepper") is not None
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 TAU_S = 0.5
 PUBLISH_HZ = 100.0
+FAST_CAP = 8.0  # fast node's real-time factor cap, so this Python client receives (nearly) every reading
 
 
 class FakeStepper:
@@ -211,7 +212,8 @@ def fast_node(ros_env: dict[str, str], client: Client, tmp_path_factory: pytest.
     out = tmp_path_factory.mktemp("node") / "node.log"
     with open(out, "w") as log:
         proc = subprocess.Popen(
-            node_cmd("fast:=true", f"publish_rate_hz:={PUBLISH_HZ}", "diagnostics_rate_hz:=10.0",
+            node_cmd("fast:=true", f"fast_max_realtime_factor:={FAST_CAP}", f"publish_rate_hz:={PUBLISH_HZ}",
+                     "diagnostics_rate_hz:=10.0",
                      f"tunnel.time_constant_s:={TAU_S}", "safety.max_airspeed_mps:=25.0", f"safety.max_tip_w_over_L:={LCO_MAX_TIP}"),
             env=ros_env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
         )

@@ -245,3 +245,36 @@ def march_batch(q, v, xi, U_runs, F_runs, active, dt, dx, M0, C, Ca, K, Ka, Qxi,
         status_out[b] = st
         if st != OK:
             active[b] = False
+
+
+@njit(cache=True)
+def march_sampled(q, v, xi, U_seq, F_seq, ends, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a,
+                  lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
+                  tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
+    """:func:`march` over segments ending at the increasing step counts ``ends`` (each >= 1 step), keeping
+    the state before and after the last step of each segment (for the aero force at a sample).
+
+    Returns (status, steps_done, segments_done); on failure the state is at the last good step.
+    """
+    start = 0
+    for s in range(ends.shape[0]):
+        end = ends[s]
+        if end - 1 > start:
+            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], dt, dx, M0, C, Ca, K, Ka, Qxi,
+                             Gv, Gs, blk_off, blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m,
+                             mass_mode, f_vec, tip_vec, tip_bound, tol, tip_out[start:end - 1])
+            if st != OK:
+                return st, start + done, s
+        q_pre[s] = q
+        v_pre[s] = v
+        xi_pre[s] = xi
+        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs,
+                         blk_off, blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode,
+                         f_vec, tip_vec, tip_bound, tol, tip_out[end - 1:end])
+        if st != OK:
+            return st, end - 1, s
+        q_post[s] = q
+        v_post[s] = v
+        xi_post[s] = xi
+        start = end
+    return OK, start, ends.shape[0]

@@ -89,6 +89,19 @@ def stepper_matrices(model: AeroelasticModel, aero: str) -> StepperMatrices:
                            ca.Ka, ca.Qxi, ca.Gv, ca.Gs, off, size, a, b, ca.dx_m)
 
 
+@dataclass(frozen=True)
+class SampledRun:
+    """Result of :meth:`Stepper.advance_sampled`: per-step tip w/L and the state at each completed sample."""
+
+    ok: bool
+    steps_done: int
+    samples_done: int
+    tip_w_over_L: np.ndarray
+    q: np.ndarray
+    qdot_per_s: np.ndarray
+    aero_force_npm: np.ndarray
+
+
 class Stepper:
     """Advance the panel by fixed steps; airspeed (m/s) and tip force (N per metre span) per step."""
 
@@ -188,6 +201,42 @@ class Stepper:
     def step(self, airspeed_mps: float, tip_force_npm: float = 0.0) -> None:
         """One physics step dt with these inputs."""
         self.advance(1, airspeed_mps, tip_force_npm)
+
+    def advance_sampled(self, airspeed_mps: np.ndarray, tip_force_npm: np.ndarray, ends: np.ndarray,
+                        tip_bound: float | None = None) -> SampledRun:
+        """Advance len(airspeed_mps) steps in one compiled call, sampling the state after each step count in
+        ``ends`` (strictly increasing, last = number of steps). Per-step inputs are trusted (finite, U >= 0).
+
+        Never raises on divergence: the march stops *before* the first step whose |tip w/L| would exceed
+        ``tip_bound`` (default and upper limit: the model's bound) or that is not finite, and the state stays
+        at the last good step (``ok`` False, ``steps_done`` steps applied).
+        """
+        U = np.ascontiguousarray(airspeed_mps, dtype=float)
+        F = np.ascontiguousarray(tip_force_npm, dtype=float)
+        ends = np.ascontiguousarray(ends, dtype=np.int64)
+        bound = self.cfg.max_tip_w_over_L if tip_bound is None else min(tip_bound, self.cfg.max_tip_w_over_L)
+        k, n, r = ends.shape[0], self.n_modes, self.xi.shape[0]
+        tip = np.empty(U.shape[0])
+        q_pre, v_pre, q_post, v_post = (np.empty((k, n)) for _ in range(4))
+        xi_pre, xi_post = np.empty((k, r)), np.empty((k, r))
+        m, s = self.mats, self.model.structure
+        status, done, segs = kernel.march_sampled(
+            self.q, self.qdot, self.xi, U, F, ends, self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv,
+            m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg,
+            self._use_k, self._use_m, SCHEMES[self.scheme], self._f_vec, self._tip_vec, bound, NEWTON_TOL, tip,
+            q_pre, v_pre, xi_pre, q_post, v_post, xi_post)
+        self.steps += done
+        self.time_s += done * self.dt_s
+        if segs:
+            last = ends[segs - 1] - 1
+            self._last = (float(U[last]), q_pre[segs - 1].copy(), v_pre[segs - 1].copy(), xi_pre[segs - 1].copy())
+        # generalised aero force of each sample's last step (midpoint), as in aero_force_npm
+        Us = U[ends[:segs] - 1][:, None]
+        acc = (v_post[:segs] - v_pre[:segs]) / self.dt_s
+        vm, qm = 0.5 * (v_post[:segs] + v_pre[:segs]), 0.5 * (q_post[:segs] + q_pre[:segs])
+        xim = 0.5 * (xi_post[:segs] + xi_pre[:segs])
+        aero = -acc @ m.Ma.T - Us * (vm @ m.Ca.T) - Us * Us * (qm @ m.Ka.T) + Us * (xim @ m.Qxi.T)
+        return SampledRun(status == kernel.OK, int(done), int(segs), tip[:done], q_post[:segs], v_post[:segs], aero)
 
 
 class BatchStepper:

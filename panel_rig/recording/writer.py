@@ -39,13 +39,34 @@ def _serialize(msg: Any) -> bytes:
 class _Channel:
     """A registered topic: MCAP channel id, type, schema text and running sequence number."""
 
-    __slots__ = ("channel_id", "info", "schema", "sequence")
+    __slots__ = ("channel_id", "info", "schema", "sequence", "msg_class", "may_end_empty")
 
-    def __init__(self, channel_id: int, info: TopicInfo, schema: str) -> None:
+    def __init__(self, channel_id: int, info: TopicInfo, schema: str, msg_class: type) -> None:
         self.channel_id = channel_id
         self.info = info
         self.schema = schema
         self.sequence = 0
+        self.msg_class = msg_class
+        self.may_end_empty = _may_end_in_sequence(msg_class)
+
+
+def _may_end_in_sequence(msg_class: type) -> bool:
+    """False if the last leaf field of this message type is never a sequence (no padding to trim, ever)."""
+    fields = getattr(msg_class, "_fields_and_field_types", None)
+    if not fields:
+        return True
+    last = list(fields.values())[-1]
+    if "sequence" in last or "[" in last:
+        return True
+    if "/" in last:  # a nested message: look at its last field
+        pkg, _, name = last.partition("/")
+        try:
+            import importlib
+
+            return _may_end_in_sequence(getattr(importlib.import_module(f"{pkg}.msg"), name))
+        except (ImportError, AttributeError):
+            return True
+    return False
 
 
 def _prepare_dir(bag_dir: Path) -> Path:
@@ -119,8 +140,12 @@ class BagWriter:
         """Messages written so far per topic."""
         return {t.name: t.message_count for t in self._summary.topics}
 
-    def write(self, topic: str, msg: Any, stamp_ns: int, *, qos: str = "sensor") -> bool:
-        """Record `msg` on `topic` at `stamp_ns` (log and publish time). False if closed."""
+    def write(self, topic: str, msg: Any, stamp_ns: int, *, qos: str = "sensor", data: bytes | None = None) -> bool:
+        """Record `msg` on `topic` at `stamp_ns` (log and publish time). False if closed.
+
+        `data`: `msg` already serialised (`rclpy.serialization.serialize_message(msg)`), e.g. the bytes just
+        published, so the message is serialised once; `msg` is still needed for its type.
+        """
         if not isinstance(topic, str) or not topic.startswith("/") or len(topic) < 2:
             raise RecordingError(f"topic must be an absolute ROS name like '/rig/x', got {topic!r}")
         if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or stamp_ns < 0:
@@ -130,7 +155,9 @@ class BagWriter:
                 self.dropped_after_close += 1
                 return False
             channel = self._channel(topic, msg, qos)
-            data = trim_trailing_padding(channel.info.type, channel.schema, msg, _serialize(msg))
+            data = _serialize(msg) if data is None else data
+            if channel.may_end_empty:
+                data = trim_trailing_padding(channel.info.type, channel.schema, msg, data)
             self._writer.add_message(
                 channel.channel_id, log_time=stamp_ns, data=data,
                 publish_time=stamp_ns, sequence=channel.sequence,
@@ -226,8 +253,10 @@ class BagWriter:
         return BagWriter._Critical(self)
 
     def _channel(self, topic: str, msg: Any, qos: str) -> _Channel:
-        type_name = schemas.type_name_of(msg)
         channel = self._channels.get(topic)
+        if channel is not None and type(msg) is channel.msg_class:
+            return channel
+        type_name = schemas.type_name_of(msg)
         if channel is not None:
             if channel.info.type != type_name:
                 raise RecordingError(
@@ -247,7 +276,7 @@ class BagWriter:
             topic, MESSAGE_ENCODING, schema_id,
             {"offered_qos_profiles": qos_yaml(profiles), "topic_type_hash": info.type_description_hash},
         )
-        channel = _Channel(channel_id, info, schema)
+        channel = _Channel(channel_id, info, schema, type(msg))
         self._channels[topic] = channel
         self._summary.topics.append(info)
         return channel

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from panel_rig.rig.actuator import AirspeedActuator
-from panel_rig.rig.reading import Reading, Sink
+from panel_rig.rig.reading import Reading, ReadingBlock, Sink
 from panel_rig.rig.safety import (
     SafetyLimits,
     check_airspeed,
@@ -106,6 +106,7 @@ class Rig:
         self.steps = 0
         self._time_s = 0.0
         self._last_force_npm = 0.0
+        self._can_block = callable(getattr(stepper, "advance_sampled", None))
 
     # ---- time -------------------------------------------------------------------------------
     @property
@@ -146,9 +147,93 @@ class Rig:
         n = math.floor((time_s - self._time_s) / self.dt_s + 1e-6)
         if max_steps is not None:
             n = min(n, max_steps)
-        for _ in range(max(n, 0)):
-            self.step()
+        if n > 0:
+            self.advance_samples([n])
         return max(n, 0)
+
+    def steps_until(self, time_s: float) -> int:
+        """Whole steps from now to ``time_s`` (as :meth:`advance_to` counts them; >= 0)."""
+        return max(math.floor((time_s - self._time_s) / self.dt_s + 1e-6), 0)
+
+    def advance_samples(self, counts: Sequence[int]) -> ReadingBlock:
+        """Run ``counts[i]`` steps, then take sample i; all samples in one block.
+
+        The same as :meth:`step` per step and :meth:`reading` per sample, but the model marches the whole
+        block in one compiled call (if the stepper has ``advance_sampled``). An abort or divergence inside
+        the block is replayed step by step, so safety behaves exactly as in :meth:`step`.
+        """
+        counts = [max(int(c), 0) for c in counts]
+        if not self._can_block:
+            return ReadingBlock.of([self._steps_then_reading(c) for c in counts])
+        parts: list[ReadingBlock] = []
+        i = 0
+        while i < len(counts):
+            if counts[i] == 0:
+                parts.append(ReadingBlock.of([self.reading()]))
+                i += 1
+                continue
+            j = i
+            while j < len(counts) and counts[j] > 0:
+                j += 1
+            block, consumed = self._march_block(counts[i:j])
+            parts.append(block)
+            i += len(block)
+            if i < j:  # interrupted inside sample i: finish it step by step (the event happens there)
+                parts.append(ReadingBlock.of([self._steps_then_reading(counts[i] - consumed)]))
+                i += 1
+        if len(parts) == 1:
+            return parts[0]
+        return ReadingBlock(*(np.concatenate([getattr(p, f) for p in parts]) for f in (
+            "time_s", "airspeed_mps", "shaker_force_npm", "tip_w_m", "tip_w_over_L", "q", "qdot_per_s",
+            "aero_force_npm")), state=self.state)
+
+    def _steps_then_reading(self, n: int) -> Reading:
+        for _ in range(n):
+            self.step()
+        return self.reading()
+
+    def _inputs(self, n: int) -> tuple[list[float], list[float], list[float]]:
+        """Per-step airspeed (at the start of each step), shaker force and airspeed after it; advances
+        the actuator and the shaker by n steps (exactly as :meth:`step` does)."""
+        act, shaker = self.actuator, self.shaker
+        u_in, force, u_out = [0.0] * n, [0.0] * n, [0.0] * n
+        for k in range(n):
+            u_in[k] = act.airspeed_mps
+            force[k] = shaker.step()
+            u_out[k] = act.step()
+        return u_in, force, u_out
+
+    def _march_block(self, counts: list[int]) -> tuple[ReadingBlock, int]:
+        """March sum(counts) steps (every count >= 1) in one call; stops before an event (tip over the limit,
+        divergence, model error). Returns the completed samples and the steps taken into the next one."""
+        ends = np.cumsum(counts)
+        n = int(ends[-1])
+        u0, phase0 = self.actuator.airspeed_mps, self.shaker.phase_rad
+        u_in, force, u_out = self._inputs(n)
+        bound = self.limits.max_tip_w_over_L if self.state == RUNNING else math.inf
+        try:
+            run = self.stepper.advance_sampled(np.array(u_in), np.array(force), ends, bound)  # type: ignore[attr-defined]
+            done, samples = run.steps_done, run.samples_done
+        except Exception:  # noqa: BLE001 (replayed step by step, where step() turns it into an abort)
+            run, done, samples = None, 0, 0
+        if done < n:  # rewind the actuator and the shaker to the event
+            self.actuator.airspeed_mps, self.shaker.phase_rad = u0, phase0
+            self._inputs(done)
+        if done:
+            self._last_force_npm = force[done - 1]
+        start = self.steps
+        self.steps += done
+        self._time_s = self.steps * self.dt_s
+        idx = ends[:samples] - 1
+        if run is None or samples == 0:
+            empty = np.zeros(0)
+            nm = len(np.atleast_1d(self.stepper.q))
+            return ReadingBlock(empty, empty, empty, empty, empty, *(np.zeros((0, nm)),) * 3, state=self.state), done
+        tip = run.tip_w_over_L[idx]
+        block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(force)[idx],
+                             tip * self.panel_length_m, tip, run.q, run.qdot_per_s, run.aero_force_npm, self.state)
+        consumed = done - (int(ends[samples - 1]) if samples else 0)
+        return block, consumed
 
     def note_overrun(self) -> None:
         """Count a clock tick the rig could not keep up with (the caller decides what that means)."""
@@ -256,6 +341,23 @@ class Rig:
             except Exception:  # noqa: BLE001 (a sink must never stop the rig)
                 self._sink_failed(sink)
         return reading
+
+    def emit_block(self, block: ReadingBlock) -> None:
+        """Hand a block of samples to every sink (``on_block`` if it has one, else ``on_reading`` each)."""
+        if not len(block) or not self.sinks:
+            return
+        singles: list[Reading] | None = None
+        for sink in list(self.sinks):
+            try:
+                on_block = getattr(sink, "on_block", None)
+                if on_block is not None:
+                    on_block(block)
+                else:
+                    singles = singles if singles is not None else block.readings()
+                    for r in singles:
+                        sink.on_reading(r)
+            except Exception:  # noqa: BLE001 (a sink must never stop the rig)
+                self._sink_failed(sink)
 
     def _notify_command(self, name: str, value: Any, accepted: bool) -> None:
         try:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+import struct
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -14,7 +16,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from panel_rig.rig.reading import Reading
+from panel_rig.rig.reading import Reading, ReadingBlock
 
 FRAME_ID = "panel_rig"
 
@@ -117,3 +119,158 @@ def diagnostics_msg(time_s: float, aborted: bool, message: str, values: Mapping[
         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
     )
     return DiagnosticArray(header=header(time_s, ""), status=[status])
+
+
+class ReadingMessages:
+    """Reusable reading messages, refilled for each sample (no per-sample message construction)."""
+
+    def __init__(self, names: Sequence[str], trailing_edge_x_m: float) -> None:
+        self.tip = PointStamped(header=header(0.0), point=Point(x=float(trailing_edge_x_m)))
+        self.modal = JointState(header=header(0.0), name=list(names))
+        self.airspeed = Vector3Stamped(header=header(0.0))
+        self._clock = Clock()
+        self._marker: Marker | None = None
+        self._marker_aborted = False
+        self.modal.position = self.modal.velocity = self.modal.effort = [0.0] * len(self.modal.name)
+        self._stamps = (self.tip.header.stamp, self.modal.header.stamp, self.airspeed.header.stamp)
+        self._templates()
+
+    def _templates(self) -> None:
+        n = len(self.modal.name)
+
+        def stamp_of(m: Any) -> Any:
+            return m.header.stamp
+
+        def setter(path: str) -> Callable[[Any, list[float]], None]:
+            obj, _, field = path.rpartition(".")
+
+            def put(m: Any, v: list[float]) -> None:
+                setattr(getattr(m, obj) if obj else m, field, v[0] if obj else v)
+
+            return put
+
+        self._tpl = (
+            CdrTemplate(self.tip, stamp_of, [setter("point.z")], [1]),
+            CdrTemplate(self.modal, stamp_of, [setter("position"), setter("velocity"), setter("effort")], [n, n, n]),
+            CdrTemplate(self.airspeed, stamp_of, [setter("vector.x")], [1]),
+        )
+        self._clock_tpl = CdrTemplate(self._clock, lambda m: m.clock, [], [])
+        self.templated = all(t.ok for t in self._tpl)
+
+    def encode(self, block: ReadingBlock) -> Iterator[tuple[int, bytes, bytes, bytes]]:
+        """For each sample: (stamp ns, CDR bytes of tip_displacement, modal_states, airspeed). Non-finite
+        values become 0. The message objects (:attr:`tip`, ...) keep their type and layout for recorders."""
+        ns_all = [max(0, round(t * 1e9)) for t in block.time_s.tolist()]
+        tip_z, airspeed = _finite(block.tip_w_m), _finite(block.airspeed_mps)
+        q, qdot, effort = _finite(block.q), _finite(block.qdot_per_s), _finite(block.aero_force_npm)
+        if self.templated:
+            t_tip, t_modal, t_air = self._tpl
+            for i, ns in enumerate(ns_all):
+                sec, nanosec = divmod(ns, 1_000_000_000)
+                yield (ns, t_tip.pack(sec, nanosec, ((tip_z[i],),)),
+                       t_modal.pack(sec, nanosec, (q[i], qdot[i], effort[i])),
+                       t_air.pack(sec, nanosec, ((airspeed[i],),)))
+            return
+        from rclpy.serialization import serialize_message
+
+        tip, modal, air = self.tip, self.modal, self.airspeed
+        for i, ns in enumerate(ns_all):
+            sec, nanosec = divmod(ns, 1_000_000_000)
+            for st in self._stamps:
+                st.sec, st.nanosec = sec, nanosec
+            tip.point.z = tip_z[i]
+            modal.position, modal.velocity, modal.effort = q[i], qdot[i], effort[i]
+            air.vector.x = airspeed[i]
+            yield ns, serialize_message(tip), serialize_message(modal), serialize_message(air)
+
+    def clock_bytes(self, stamp_ns: int) -> bytes | Clock:
+        """/clock at this stamp: CDR bytes (or the refilled message if no template)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        if self._clock_tpl.ok:
+            return self._clock_tpl.pack(sec, nanosec, ())
+        return self.clock(stamp_ns)
+
+    def clock(self, stamp_ns: int) -> Clock:
+        """/clock at this stamp (the same message object, refilled)."""
+        self._clock.clock.sec, self._clock.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
+        return self._clock
+
+    def shape(self, time_s: float, airfoil_length_m: float, panel_length_m: float, w_over_L: np.ndarray,
+              x_over_L: np.ndarray, aborted: bool = False) -> Marker:
+        """As :func:`shape_msg`, refilling one Marker (panel points' z, colours, stamp)."""
+        m = self._marker
+        n_panel = len(x_over_L)
+        if m is None or len(m.points) < n_panel:
+            self._marker = m = shape_msg(time_s, airfoil_length_m, panel_length_m, w_over_L, x_over_L, aborted)
+            self._marker_aborted = aborted
+            return m
+        st = stamp(time_s)
+        m.header.stamp.sec, m.header.stamp.nanosec = st.sec, st.nanosec
+        colour = RED if aborted else BLUE
+        m.color = colour
+        first = len(m.points) - n_panel
+        for pt, z in zip(m.points[first:], _finite(np.asarray(w_over_L) * panel_length_m)):
+            pt.z = z
+        if aborted != self._marker_aborted:
+            m.colors = list(m.colors[:first]) + [colour] * n_panel
+        self._marker_aborted = aborted
+        return m
+
+
+_SENTINEL_INTS = (0x5A3B1C2D, 0x6B2C3D4E)
+
+
+class CdrTemplate:
+    """Serialise a message whose layout never changes (fixed strings and sequence lengths) by writing the
+    stamp and some float64 fields into a template of its CDR bytes: ~1 us instead of ~4.5 us.
+
+    The offsets are found by serialising probe values with rclpy and are checked once against
+    ``serialize_message``; if anything does not match, :attr:`ok` is False and the caller must serialise.
+    """
+
+    def __init__(self, msg: Any, stamp_of: Callable[[Any], Any], doubles: Sequence[Callable[[Any, list[float]], None]],
+                 n_doubles: Sequence[int]) -> None:
+        from rclpy.serialization import serialize_message
+
+        self._serialize = serialize_message
+        self.msg, self._stamp_of, self._setters, self._counts = msg, stamp_of, list(doubles), list(n_doubles)
+        self.ok = False
+        try:
+            self._offsets = self._probe()
+            self.ok = self._offsets is not None and self._check()
+        except Exception:  # noqa: BLE001 (no template: plain serialisation)
+            self.ok = False
+
+    def _fill_msg(self, sec: int, nanosec: int, values: Sequence[Sequence[float]]) -> None:
+        st = self._stamp_of(self.msg)
+        st.sec, st.nanosec = sec, nanosec
+        for setter, v in zip(self._setters, values):
+            setter(self.msg, list(v))
+
+    def _probe(self) -> tuple[int, list[int]] | None:
+        probes = [[1.2345678901234567e-300 * (i + 1) * (k + 3) for k in range(n)] for i, n in enumerate(self._counts)]
+        self._fill_msg(*_SENTINEL_INTS, probes)
+        data = bytes(self._serialize(self.msg))
+        if data[:2] != b"\x00\x01":  # little-endian CDR only
+            return None
+        stamp_at = data.find(struct.pack("<iI", *_SENTINEL_INTS))
+        starts = [data.find(struct.pack(f"<{len(p)}d", *p)) if p else 0 for p in probes]
+        if stamp_at < 0 or min(starts, default=0) < 0:
+            return None
+        self._template = bytearray(data)
+        self._formats = [struct.Struct(f"<{n}d") for n in self._counts]
+        return stamp_at, starts
+
+    def _check(self) -> bool:
+        values = [[0.5 + 0.25 * k - i for k in range(n)] for i, n in enumerate(self._counts)]
+        self._fill_msg(12345, 678901234, values)
+        return self.pack(12345, 678901234, values) == bytes(self._serialize(self.msg))
+
+    def pack(self, sec: int, nanosec: int, values: Sequence[Sequence[float]]) -> bytes:
+        """The CDR bytes of the message with this stamp and these float64 values (one list per field)."""
+        stamp_at, starts = self._offsets
+        buf = self._template
+        struct.pack_into("<iI", buf, stamp_at, sec, nanosec)
+        for fmt, at, v in zip(self._formats, starts, values):
+            fmt.pack_into(buf, at, *v)
+        return bytes(buf)

@@ -7,6 +7,8 @@ the steady clock. Fast mode (``fast: true``): steps as fast as possible, publish
 
 from __future__ import annotations
 
+import math
+import os
 import signal
 import sys
 import threading
@@ -25,6 +27,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -33,7 +36,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
-from panel_rig.rig.reading import Reading, Sink
+from panel_rig.rig.reading import Reading, ReadingBlock, Sink
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
@@ -43,6 +46,8 @@ NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 SHAPE_POINTS = 31
+FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics)
+FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
 
 
@@ -77,6 +82,8 @@ class RigNode(Node):
             raise StartupError(f"cannot build the model ({type(exc).__name__}: {exc})") from exc
         try:  # warm-up (JIT compile, caches) before the clock starts; then back to rest
             stepper.step(0.0, 0.0)
+            if callable(getattr(stepper, "advance_sampled", None)):
+                stepper.advance_sampled(np.zeros(2), np.zeros(2), np.array([1, 2]))
             stepper.reset()
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
@@ -85,6 +92,7 @@ class RigNode(Node):
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
         self._shape_period_s = 1.0 / p["shape_rate_hz"]
         self._max_lag_s = p["max_lag_s"]
+        self.fast_max_rtf: float = p["fast_max_realtime_factor"]
         self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
         self._x_over_L = np.linspace(0.0, 1.0, SHAPE_POINTS)
         self._trailing_edge_x_m = self.cfg.airfoil_length_m + self.cfg.panel_length_m
@@ -100,6 +108,9 @@ class RigNode(Node):
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
+        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m)
+        self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
+                                                                        self.pub_shape, self.pub_diag)}
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -206,6 +217,8 @@ class RigNode(Node):
                 self.rig.actuator.set_max_rate(value)
             elif prm.name == "max_lag_s":
                 self._max_lag_s = value
+            elif prm.name == "fast_max_realtime_factor":
+                self.fast_max_rtf = value
             else:
                 self._pending[prm.name] = value
         if limits:
@@ -259,10 +272,14 @@ class RigNode(Node):
         self.rig.sinks.append(sink)
 
     def _publish(self, pub: Any, msg: Any, time_s: float, qos: str = "sensor") -> None:
-        pub.publish(msg)
+        """Serialise once; the same bytes go to the topic and to every recorder."""
+        self._publish_bytes(pub, msg, serialize_message(msg), messages.stamp_ns(time_s), qos)
+
+    def _publish_bytes(self, pub: Any, msg: Any, data: bytes, stamp_ns: int, qos: str = "sensor") -> None:
+        pub.publish(data)
         for rec in self._recorders:
             try:
-                rec.write(self._topic_name(pub.topic_name), msg, messages.stamp_ns(time_s), qos=qos)
+                rec.write(self._full[pub], msg, stamp_ns, qos=qos, data=data)
             except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
                 self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
 
@@ -321,33 +338,54 @@ class RigNode(Node):
         self.publish_readings()
 
     def fast_iteration(self) -> None:
-        """Fast mode: one publish period of simulated time as fast as possible, then publish + /clock."""
-        self._fast_next_s = max(self._fast_next_s, self.rig.time_s) + self._publish_period_s
-        self.rig.advance_to(self._fast_next_s)
-        self.publish_readings()
+        """Fast mode: march publish periods up to the next shape sample in one block, then publish them all."""
+        start = max(self._fast_next_s, self.rig.time_s)
+        periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1),
+                      FAST_MAX_BLOCK_PERIODS)
+        counts, t = [], self.rig.time_s
+        for k in range(1, periods + 1):
+            target = start + k * self._publish_period_s
+            n = max(math.floor((target - t) / self.dt_s + 1e-6), 0)
+            counts.append(n)
+            t += n * self.dt_s
+        self._fast_next_s = start + periods * self._publish_period_s
+        self._publish_block(self.rig.advance_samples(counts))
 
     def publish_readings(self) -> Reading:
-        """Readings to topics and sinks; the shape at its own (simulated-time) rate."""
-        r = self.rig.emit()
-        t = r.time_s
-        self._publish(self.pub_tip, messages.tip_msg(r, self._trailing_edge_x_m), t)
-        self._publish(self.pub_modal, messages.modal_msg(r, self._names), t)
-        self._publish(self.pub_airspeed, messages.airspeed_msg(r), t)
-        if self.pub_clock is not None:
-            self.pub_clock.publish(messages.clock_msg(t))
-        if t >= self._next_shape_s:
-            self._next_shape_s = t + self._shape_period_s
-            w = self.rig.shape_w_over_L(self._x_over_L)
-            marker = messages.shape_msg(
-                t, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, r.state == ABORTED
-            )
-            self._publish(self.pub_shape, marker, t, qos="reliable")
-            if self._rerun is not None:
-                try:
-                    self._rerun.log_shape(t, [pt.x for pt in marker.points], [pt.z for pt in marker.points])
-                except Exception as exc:  # noqa: BLE001
-                    self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
+        """The current reading to topics and sinks (real-time tick); the shape at its own rate."""
+        r = self.rig.reading()
+        self._publish_block(ReadingBlock.of([r]))
         return r
+
+    def _publish_block(self, block: ReadingBlock) -> None:
+        """Samples to sinks, topics and recorders (one serialisation each); the shape at the last sample if due."""
+        if not len(block):
+            return
+        self.rig.emit_block(block)
+        msgs, recording = self._msgs, bool(self._recorders)
+        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed))
+        for stamp_ns, *encoded in msgs.encode(block):
+            for (pub, msg), data in zip(pubs, encoded):
+                if recording:
+                    self._publish_bytes(pub, msg, data, stamp_ns)
+                else:
+                    pub.publish(data)
+            if self.pub_clock is not None:
+                self.pub_clock.publish(msgs.clock_bytes(stamp_ns))
+        t = float(block.time_s[-1])
+        if t >= self._next_shape_s - 1e-9:
+            self._next_shape_s = t + self._shape_period_s
+            self._publish_shape(t, block.state == ABORTED)
+
+    def _publish_shape(self, t: float, aborted: bool) -> None:
+        w = self.rig.shape_w_over_L(self._x_over_L)
+        marker = self._msgs.shape(t, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, aborted)
+        self._publish(self.pub_shape, marker, t, qos="reliable")
+        if self._rerun is not None:
+            try:
+                self._rerun.queue_shape(t, [pt.x for pt in marker.points], [pt.z for pt in marker.points])
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
@@ -405,14 +443,30 @@ class RigNode(Node):
 
 
 def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
-    """Run the node until ``should_stop()``: timers in real-time mode, a stepping loop in fast mode."""
+    """Run the node until ``should_stop()``: timers in real-time mode; in fast mode a stepping loop that
+    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time."""
+    next_spin = 0.0
+    pace_wall, pace_sim = time.monotonic(), node.rig.time_s
     while not should_stop() and rclpy.ok(context=node.context):
         node.apply_pending()
-        if node.fast:
-            node.fast_iteration()
-            executor.spin_once(timeout_sec=0.0)
-        else:
+        if not node.fast:
             executor.spin_once(timeout_sec=0.05)
+            continue
+        node.fast_iteration()
+        now = time.monotonic()
+        ahead_s = 0.0
+        if node.fast_max_rtf > 0:  # optional cap: wait (serving callbacks) while ahead of the paced clock
+            ahead_s = pace_wall + (node.rig.time_s - pace_sim) / node.fast_max_rtf - now
+            if ahead_s < -0.1:  # fell behind the cap: re-anchor rather than burst
+                pace_wall, pace_sim, ahead_s = now, node.rig.time_s, 0.0
+        else:
+            pace_wall, pace_sim = now, node.rig.time_s
+        if ahead_s > 0:
+            executor.spin_once(timeout_sec=min(ahead_s, FAST_SPIN_PERIOD_S))
+            next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
+        elif now >= next_spin:
+            executor.spin_once(timeout_sec=0.0)
+            next_spin = now + FAST_SPIN_PERIOD_S
 
 
 def _split_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
@@ -424,10 +478,36 @@ def _split_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     return argv, []
 
 
+def params_for_any_namespace(path: str) -> str:
+    """A parameters file whose ``panel_rig:`` (node name at the root) sections also apply in a namespace.
+
+    rcl matches a plain ``panel_rig:`` key only to ``/panel_rig``; the node runs as ``/rig/panel_rig``. Such
+    sections are re-keyed ``/**`` into a temporary copy (other keys are kept). Unreadable files are passed on
+    unchanged, for rcl to report.
+    """
+    import tempfile
+
+    import yaml
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return path
+    if not isinstance(doc, dict) or not ({NODE_NAME, f"/{NODE_NAME}"} & set(doc)):
+        return path
+    rekeyed = {("/**" if k in (NODE_NAME, f"/{NODE_NAME}") else k): v for k, v in doc.items()}
+    fd, out = tempfile.mkstemp(prefix="panel_rig_params_", suffix=".yaml")
+    with os.fdopen(fd, "w") as fh:
+        yaml.safe_dump(rekeyed, fh)
+    return out
+
+
 def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None) -> int:
     """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name. Returns an exit code.
 
-    Own options before ``--ros-args``: ``--fast``, ``--params FILE`` (shorthand for ``--params-file``).
+    Own options before ``--ros-args``: ``--fast``, ``--params FILE`` (a parameters file applied in any
+    namespace, e.g. ``config/tang_dowell_2002.yaml`` with its ``panel_rig:`` key; loaded after ``--ros-args``
+    files, so its values win).
     """
     import argparse
 
@@ -438,7 +518,7 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
     opts = parser.parse_args(own)
     extra: list[str] = []
     for path in opts.params:
-        extra += ["--params-file", path]
+        extra += ["--params-file", params_for_any_namespace(path)]
     if opts.fast:
         extra += ["-p", "fast:=true"]
     if extra:

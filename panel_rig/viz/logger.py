@@ -6,13 +6,14 @@ All data is on the duration timeline `sim_time` (simulated seconds).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:
-    from panel_rig.rig.reading import Reading
+    from panel_rig.rig.reading import Reading, ReadingBlock
 
 MODES = ("off", "save", "connect")
 TIMELINE = "sim_time"
@@ -63,6 +64,7 @@ class RerunLogger:
         target: str | None,
         application_id: str = "panel_rig",
         recording_name: str | None = None,
+        batch_period_s: float = 0.1,
     ) -> None:
         if mode not in MODES:
             raise VizError(f"rerun mode must be one of {MODES}, got {mode!r}")
@@ -71,6 +73,10 @@ class RerunLogger:
         self.n_modes = n_modes
         self.mode = mode
         self.target = target
+        self.batch_period_s = float(batch_period_s)
+        self._pending: list[ReadingBlock] = []
+        self._pending_shapes: list[tuple[float, np.ndarray]] = []
+        self._pending_since = time.monotonic()
         self._rec: Any = None
         if mode == "off":
             return
@@ -147,9 +153,48 @@ class RerunLogger:
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(SHAPE, self._rr.LineStrips3D([points]))
 
+    def queue_shape(self, time_s: float, x_m: np.ndarray, z_m: np.ndarray) -> None:
+        """As :meth:`log_shape`, but buffered and sent with the next :meth:`flush_blocks` (one call for many)."""
+        if self._rec is None:
+            return
+        x = np.asarray(x_m, dtype=float).reshape(-1)
+        z = np.asarray(z_m, dtype=float).reshape(-1)
+        if x.size != z.size:
+            raise VizError(f"queue_shape: x has {x.size} points, z has {z.size}")
+        self._pending_shapes.append((float(time_s), np.column_stack([x, np.zeros_like(x), z])))
+
     # Sink protocol (panel_rig.rig.reading.Sink)
     def on_reading(self, reading: Reading) -> None:
         self.log_reading(reading)
+
+    def on_block(self, block: ReadingBlock) -> None:
+        """Buffer a block of samples; sent as columns at most every `batch_period_s` of wall time."""
+        if self._rec is None:
+            return
+        self._pending.append(block)
+        if time.monotonic() - self._pending_since >= self.batch_period_s:
+            self.flush_blocks()
+
+    def flush_blocks(self) -> None:
+        """Send the buffered blocks now (one `send_columns` per entity)."""
+        pending, self._pending = self._pending, []
+        shapes, self._pending_shapes = self._pending_shapes, []
+        self._pending_since = time.monotonic()
+        if self._rec is None:
+            return
+        if shapes:
+            rr = self._rr
+            self._rec.send_columns(
+                SHAPE, indexes=[rr.TimeColumn(TIMELINE, duration=np.array([t for t, _ in shapes]))],
+                columns=rr.LineStrips3D.columns(strips=[p for _, p in shapes]).partition([1] * len(shapes)),
+            )
+        if not pending:
+            return
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(b, name) for b in pending])
+
+        self.log_batch(cat("time_s"), cat("tip_w_over_L"), cat("q"), cat("airspeed_mps"), cat("shaker_force_npm"))
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         """Accepted commands become scalars under `commands/<name>`."""
@@ -160,6 +205,8 @@ class RerunLogger:
 
     def close(self) -> None:
         """Flush everything; the logger is disabled afterwards. Idempotent."""
+        if self._rec is not None:
+            self.flush_blocks()
         rec, self._rec = self._rec, None
         if rec is None:
             return

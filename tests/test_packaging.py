@@ -1,0 +1,38 @@
+"""package.xml is valid for catkin_pkg, and colcon sees the package as ros.ament_python."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_package_xml_passes_catkin_pkg_validation() -> None:
+    package = pytest.importorskip("catkin_pkg.package")
+    pkg = package.parse_package(str(ROOT / "package.xml"), warnings=(warnings := []))
+    pkg.validate()  # raises InvalidPackage on any error (e.g. a bad maintainer e-mail)
+    assert pkg.name == "panel_rig" and not warnings
+    assert pkg.get_build_type() == "ament_python"
+
+
+def test_colcon_lists_the_package_as_ament_python(tmp_path: Path) -> None:
+    colcon = Path(sys.executable).with_name("colcon")
+    if not colcon.exists():
+        pytest.skip("colcon not installed (pip install colcon-core colcon-ros colcon-python-setup-py)")
+    pkg = tmp_path / "src" / "panel_rig"
+    pkg.mkdir(parents=True)
+    for name in ("package.xml", "setup.py", "setup.cfg"):
+        shutil.copy(ROOT / name, pkg / name)
+    for name in ("resource", "panel_rig", "config", "launch"):
+        shutil.copytree(ROOT / name, pkg / name, ignore=shutil.ignore_patterns("__pycache__"))
+    env = dict(os.environ, COLCON_HOME=str(tmp_path / "colcon_home"), COLCON_LOG_PATH=str(tmp_path / "log"))
+    out = subprocess.run([str(colcon), "list"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = [line.split() for line in out.stdout.splitlines() if line.strip()]
+    assert ["panel_rig", "src/panel_rig", "(ros.ament_python)"] in rows, out.stdout
