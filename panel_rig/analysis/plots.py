@@ -82,3 +82,68 @@ def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarr
     ax.set(xlabel="frequency, Hz", ylabel="amplitude of tip w/L", title="Fig. 4(b): spectrum")
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+_STATUS_STYLE = {"lco": ("C3", "o"), "growing": ("C1", "^"), "decaying": ("C0", "v"), "quiet": ("0.6", "s")}
+
+
+def plot_time_history(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
+                      spans: Sequence[tuple[float, float, str]] = ()) -> Path:
+    """Recording: tip w/L and measured airspeed versus time, plateaus shaded by status."""
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, height_ratios=[2, 1])
+    ax1.plot(t_s, tip_w_over_L, lw=0.5, color="C0")
+    ax2.plot(t_s, airspeed_mps, lw=1.2, color="C2")
+    for t0, t1, status in spans:
+        for ax in (ax1, ax2):
+            ax.axvspan(t0, t1, color=_STATUS_STYLE.get(status, ("0.6", ""))[0], alpha=0.12, lw=0)
+        ax2.annotate(status, ((t0 + t1) / 2, ax2.get_ylim()[0]), ha="center", va="bottom", fontsize=7)
+    ax1.set(ylabel="tip w/L", title="Time history (shaded: airspeed plateaus)")
+    ax2.set(xlabel="time, s", ylabel="airspeed, m/s")
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
+                     window_s: float = 2.0, f_max_hz: float = 60.0) -> Path:
+    """Spectrogram of tip w/L (dB) with the measured airspeed on a second axis."""
+    dt = float((t_s[-1] - t_s[0]) / (t_s.size - 1))
+    nfft = int(2 ** np.ceil(np.log2(max(16, window_s / dt))))
+    nfft = min(nfft, max(16, 2 ** int(np.log2(max(16, t_s.size // 4)))))
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    x = np.asarray(tip_w_over_L, float) - np.mean(tip_w_over_L)
+    with np.errstate(divide="ignore"):  # silent stretches (rig at rest) are -inf dB
+        ax.specgram(x, NFFT=nfft, Fs=1.0 / dt, noverlap=nfft // 2, xextent=(t_s[0], t_s[-1]), cmap="viridis",
+                    scale="dB")
+    ax.set(xlabel="time, s", ylabel="frequency, Hz", ylim=(0, min(f_max_hz, 0.5 / dt)),
+           title=f"Spectrogram of tip w/L ({nfft * dt:.2f} s windows)")
+    ax2 = ax.twinx()
+    ax2.plot(t_s, airspeed_mps, color="w", lw=1.2)
+    ax2.set_ylabel("airspeed, m/s (white)")
+    return _save(fig, path)
+
+
+def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict | None = None) -> Path:
+    """Fig. 8 from a recording: RMS tip w/L and dominant frequency per airspeed plateau."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.2))
+    for status, (color, marker) in _STATUS_STYLE.items():
+        sel = [p for p in plateaus if p["status"] == status]
+        if not sel:
+            continue
+        u = [p["airspeed_mps"] for p in sel]
+        ax1.plot(u, [p["rms_tip_w_over_L"] for p in sel], marker, color=color, label=status)
+        if status in ("lco", "growing"):
+            ax2.plot(u, [p["dominant_frequency_hz"] for p in sel], marker, color=color, label=status)
+    onset = onset or {}
+    lo, hi, ex = onset.get("bracket_low_mps"), onset.get("bracket_high_mps"), onset.get("extrapolated_mps")
+    for ax in (ax1, ax2):
+        if lo is not None and hi is not None:
+            ax.axvspan(lo, hi, color="0.8", alpha=0.5, label="onset bracket")
+        if ex is not None:
+            ax.axvline(ex, color="k", ls="--", lw=1, label=f"extrapolated {ex:.2f} m/s")
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("airspeed, m/s")
+    ax1.set(ylabel="RMS tip w/L", title="(a) LCO amplitude")
+    ax2.set(ylabel="dominant frequency, Hz", title="(b) LCO frequency")
+    ax1.legend(fontsize=8)
+    return _save(fig, path)
