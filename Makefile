@@ -1,4 +1,4 @@
-# Two commands: `make run` (the demo / main job) and `make test` (the suite).
+# Two commands: `make run` (the demo session, then the paper report) and `make test` (the suite).
 # Both create .venv on first use through the one idempotent `.venv` target.
 PY ?= python3
 VENV := .venv
@@ -15,6 +15,7 @@ $(STAMP): setup.py setup.cfg package.xml
 .venv: $(STAMP)
 
 run: .venv
+	$(BIN)/panel-rig demo
 	$(BIN)/panel-rig paper --out out/paper
 
 test: .venv

@@ -212,10 +212,22 @@ def cmd_operate(args: argparse.Namespace) -> int:
     return operator_main([args.profile, *args.rest])
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    from panel_rig.demo import main as demo_main
+
+    return demo_main(args.rest)
+
+
 def cmd_bag_recover(args: argparse.Namespace) -> int:
     from panel_rig.recording.recover import main_bag_recover
 
     return main_bag_recover(args.bag)
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from panel_rig.recording.analyze import run
+
+    return run(args)
 
 
 # ---- parser -----------------------------------------------------------------------------------
@@ -294,11 +306,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=cmd_operate)
 
+    p = sub.add_parser("demo", help="a tunnel session: node (fast) + staircase operator + recording + summary")
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="--profile FILE, --out DIR, --bag-dir DIR, --max-rtf X")
+    p.set_defaults(func=cmd_demo)
+
     p = sub.add_parser("bag", help="recording utilities")
     bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
     r = bag.add_parser("recover", help="rebuild a readable bag from a killed recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)
+
+    from panel_rig.recording.analyze import add_arguments as analyze_arguments
+
+    p = sub.add_parser("analyze", help="airspeed plateaus, LCO and flutter onset from a recorded bag")
+    analyze_arguments(p)
+    p.set_defaults(func=cmd_analyze)
     return parser
 
 

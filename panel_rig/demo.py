@@ -1,0 +1,113 @@
+"""``panel-rig demo`` (``make run``): one tunnel session end to end, with a printed summary.
+
+Starts the rig node in fast mode as a subprocess (own ROS domain, localhost discovery, logs under
+``out/``) recording a bag and a Rerun ``.rrd``, plays ``config/staircase.yaml`` with the scripted
+operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.recording.analyze``
+exists) into PNGs and prints what happened.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+NODE_STOP_TIMEOUT_S = 20.0
+
+
+def _env(log_dir: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(random.randint(100, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_LOG_DIR=str(log_dir))
+    return env
+
+
+def _new_bag(bag_dir: Path, before: set[str]) -> Path | None:
+    new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
+    return new[-1] if new else None
+
+
+def _stop(proc: subprocess.Popen) -> int:
+    """SIGINT, wait; SIGKILL only if it does not stop."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(NODE_STOP_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def _analyze(bag: Path, out: Path) -> str:
+    """Analyse the new bag: PNGs and analysis.json into out; returns the human-readable table."""
+    from panel_rig.recording.analyze import analyze_bag, format_table
+
+    result = analyze_bag(bag, plots_dir=out)
+    (out / "analysis.json").write_text(json.dumps(result, indent=1, default=str))
+    return format_table(result)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the demo session; 0 on success (an abort of the rig is reported, not a failure)."""
+    ap = argparse.ArgumentParser(prog="panel-rig demo", description=__doc__.splitlines()[0])
+    ap.add_argument("--profile", default=str(ROOT / "config" / "staircase.yaml"))
+    ap.add_argument("--out", default="out/demo", help="directory for the .rrd, plots and logs")
+    ap.add_argument("--bag-dir", default="bags")
+    ap.add_argument("--max-rtf", type=float, default=20.0, help="fast-mode real-time factor cap (0: none)")
+    args = ap.parse_args(argv)
+    run = time.strftime("demo_%Y%m%d_%H%M%S")
+    out, bag_dir = Path(args.out), Path(args.bag_dir)
+    (out / "ros_log").mkdir(parents=True, exist_ok=True)
+    bag_dir.mkdir(parents=True, exist_ok=True)
+    rrd = out / f"{run}.rrd"
+    env = _env(out / "ros_log")
+    before = {p.name for p in bag_dir.glob("rig_*")}
+    t0 = time.monotonic()
+    node_log = out / f"{run}_node.log"
+    node_cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params",
+                str(ROOT / "config" / "tang_dowell_2002.yaml"), "--ros-args", "-r", "__ns:=/rig",
+                "--params-file", str(ROOT / "config" / "rig.yaml"),
+                "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
+                "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}"]
+    with open(node_log, "w") as log:
+        node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", args.profile, "--namespace", "/rig",
+                             "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
+    finally:
+        node_code = _stop(node)
+    wall_s = time.monotonic() - t0
+    print(f"panel-rig demo: profile {args.profile}, node exit {node_code}, operator exit {op.returncode}, "
+          f"{wall_s:.1f} s wall")
+    print("\nWhat the operator did (rig time; tip RMS over the second half of each step):")
+    print(op.stdout.strip() or "(no output)")
+    if op.returncode != 0:
+        print(op.stderr.strip()[-2000:], file=sys.stderr)
+    log_text = node_log.read_text(errors="replace")
+    aborts = [line.split("]: ", 1)[-1] for line in log_text.splitlines() if "rig aborted" in line]
+    print("\nAborts: " + ("; ".join(aborts) if aborts else "none (the rig ran the whole procedure)"))
+    bag = _new_bag(bag_dir, before)
+    print(f"Bag: {bag or '(none found)'}\nRerun: {rrd if rrd.exists() else '(not written)'}\nNode log: {node_log}")
+    analysed = False
+    if bag is not None:
+        try:
+            table = _analyze(bag, out)
+        except Exception as exc:  # noqa: BLE001 - reported, and the demo then fails
+            print(f"analysis failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        else:
+            analysed = True
+            print(f"\nAnalysis of {bag.name} (PNGs and analysis.json in {out}):\n{table}")
+    ok = op.returncode == 0 and node_code == 0 and bag is not None and analysed
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
