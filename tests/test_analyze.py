@@ -372,3 +372,28 @@ def test_analyze_writes_rrd_from_bag(node_run: dict[str, object], tmp_path: Path
             temporal[str(chunk.entity_path)] += chunk.num_rows
     assert temporal["/tip/w_over_L"] == res["samples"] == temporal["/modal/q3"]
     assert temporal["/panel/shape"] > 0 and temporal["/commands/shaker/force_cmd"] == 2
+
+
+def test_irregular_lco_and_exponential_decay_are_told_apart() -> None:
+    """A large bursting oscillation (non-exponential envelope) is an LCO; a clean exponential decay is not."""
+    from panel_rig.recording.analyze import Criteria, _status
+
+    c = Criteria()
+    assert _status(0.2, 0.8, -0.2, -0.2, sustain=0.3, r2=0.4, crit=c) == "lco"
+    assert _status(0.2, 0.8, -0.2, -0.2, sustain=1.1, r2=0.95, crit=c) == "lco"
+    assert _status(0.2, 0.8, -0.2, -0.2, sustain=0.3, r2=0.98, crit=c) == "decaying"
+    assert _status(0.01, 0.8, -0.2, -0.2, sustain=0.9, r2=0.2, crit=c) == "decaying"  # too small to be irregular LCO
+
+
+def test_onset_ignores_plateaus_after_the_first_lco() -> None:
+    """Hysteresis: plateaus back below the flutter speed that stay in LCO, or decay later, do not move the bracket."""
+    from panel_rig.recording.analyze import estimate_onset
+
+    def p(u, status, t0, rate=0.0):
+        return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}
+
+    plateaus = [p(8.0, "quiet", 0), p(10.0, "quiet", 10), p(10.8, "lco", 20), p(11.2, "lco", 30),
+                p(10.0, "lco", 40), p(9.0, "lco", 50), p(8.0, "decaying", 60, -0.3)]
+    onset = estimate_onset(plateaus)
+    assert onset["bracket_low_mps"] == 10.0 and onset["bracket_high_mps"] == 10.8
+    assert onset["extrapolated_mps"] is None and onset["extrapolation_points"] == []
