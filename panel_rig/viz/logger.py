@@ -145,11 +145,7 @@ class RerunLogger:
         """Log the deflected airfoil+panel line (x along chord, z deflection, y = 0) as one strip."""
         if self._rec is None:
             return
-        x = np.asarray(x_m, dtype=float).reshape(-1)
-        z = np.asarray(z_m, dtype=float).reshape(-1)
-        if x.size != z.size:
-            raise VizError(f"log_shape: x has {x.size} points, z has {z.size}")
-        points = np.column_stack([x, np.zeros_like(x), z])
+        points = _strip_points(x_m, z_m, "log_shape")
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(SHAPE, self._rr.LineStrips3D([points]))
 
@@ -157,11 +153,7 @@ class RerunLogger:
         """As :meth:`log_shape`, but buffered and sent with the next :meth:`flush_blocks` (one call for many)."""
         if self._rec is None:
             return
-        x = np.asarray(x_m, dtype=float).reshape(-1)
-        z = np.asarray(z_m, dtype=float).reshape(-1)
-        if x.size != z.size:
-            raise VizError(f"queue_shape: x has {x.size} points, z has {z.size}")
-        self._pending_shapes.append((float(time_s), np.column_stack([x, np.zeros_like(x), z])))
+        self._pending_shapes.append((float(time_s), _strip_points(x_m, z_m, "queue_shape")))
 
     # Sink protocol (panel_rig.rig.reading.Sink)
     def on_reading(self, reading: Reading) -> None:
@@ -236,3 +228,12 @@ class RerunLogger:
         rec.log("panel", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for entity, (name, color) in styles.items():
             rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
+
+
+def _strip_points(x_m: np.ndarray, z_m: np.ndarray, caller: str) -> np.ndarray:
+    """(N, 3) points of the airfoil + panel line: x along the chord, y = 0, z the deflection, m."""
+    x = np.asarray(x_m, dtype=float).reshape(-1)
+    z = np.asarray(z_m, dtype=float).reshape(-1)
+    if x.size != z.size:
+        raise VizError(f"{caller}: x has {x.size} points, z has {z.size}")
+    return np.column_stack([x, np.zeros_like(x), z])
