@@ -31,49 +31,39 @@ def _not_finite(name: str, value: float) -> str | None:
     return None
 
 
-def check_airspeed(airspeed_mps: float, limits: SafetyLimits) -> str | None:
-    """Set-point in [0, max_airspeed_mps]."""
-    reason = _not_finite("airspeed", airspeed_mps)
+def _check_range(name: str, value: float, unit: str, limit: float, symmetric: bool = False) -> str | None:
+    """A finite number in [0, limit] (or [-limit, limit] if symmetric), else the reason."""
+    reason = _not_finite(name, value)
     if reason:
         return reason
-    if airspeed_mps < 0:
-        return f"airspeed must be >= 0 m/s, got {airspeed_mps:g}"
-    if airspeed_mps > limits.max_airspeed_mps:
-        return f"airspeed {airspeed_mps:g} m/s exceeds the limit {limits.max_airspeed_mps:g} m/s"
+    if not symmetric and value < 0:
+        return f"{name} must be >= 0 {unit}, got {value:g}"
+    if abs(value) > limit:
+        bound = f"+-{limit:g}" if symmetric else f"{limit:g}"
+        return f"{name} {value:g} {unit} exceeds the limit {bound} {unit}"
     return None
+
+
+def check_airspeed(airspeed_mps: float, limits: SafetyLimits) -> str | None:
+    """Set-point in [0, max_airspeed_mps]."""
+    return _check_range("airspeed", airspeed_mps, "m/s", limits.max_airspeed_mps)
 
 
 def check_force(force_npm: float, limits: SafetyLimits) -> str | None:
     """Held force in [-max_force_npm, max_force_npm]."""
-    reason = _not_finite("shaker force", force_npm)
-    if reason:
-        return reason
-    if abs(force_npm) > limits.max_force_npm:
-        return f"shaker force {force_npm:g} N/m exceeds the limit +-{limits.max_force_npm:g} N/m"
-    return None
+    return _check_range("shaker force", force_npm, "N/m", limits.max_force_npm, symmetric=True)
 
 
 def check_amplitude(amplitude_npm: float, limits: SafetyLimits) -> str | None:
     """Sine amplitude in [0, max_amplitude_npm]."""
-    reason = _not_finite("shaker amplitude", amplitude_npm)
-    if reason:
-        return reason
-    if amplitude_npm < 0:
-        return f"shaker amplitude must be >= 0 N/m, got {amplitude_npm:g}"
-    if amplitude_npm > limits.max_amplitude_npm:
-        return f"shaker amplitude {amplitude_npm:g} N/m exceeds the limit {limits.max_amplitude_npm:g} N/m"
-    return None
+    return _check_range("shaker amplitude", amplitude_npm, "N/m", limits.max_amplitude_npm)
 
 
 def check_frequency(frequency_hz: float, limits: SafetyLimits, dt_s: float | None = None) -> str | None:
     """Sine frequency in [0, max_frequency_hz] and, given dt, below a quarter of the step rate."""
-    reason = _not_finite("shaker frequency", frequency_hz)
+    reason = _check_range("shaker frequency", frequency_hz, "Hz", limits.max_frequency_hz)
     if reason:
         return reason
-    if frequency_hz < 0:
-        return f"shaker frequency must be >= 0 Hz, got {frequency_hz:g}"
-    if frequency_hz > limits.max_frequency_hz:
-        return f"shaker frequency {frequency_hz:g} Hz exceeds the limit {limits.max_frequency_hz:g} Hz"
     if dt_s is not None and frequency_hz > 0.25 / dt_s:
         return f"shaker frequency {frequency_hz:g} Hz is too high for the physics step ({0.25 / dt_s:g} Hz max)"
     return None
