@@ -7,7 +7,6 @@ Runs the rig node in-process (its own rclpy context and a private ROS domain; no
 from __future__ import annotations
 
 import json
-import math
 import os
 import random
 import sys
@@ -15,35 +14,8 @@ import tempfile
 import time
 from typing import Any
 
-import numpy as np
 
-
-class _Oscillator:
-    """Used only if panel_rig.model.stepper is not there yet (reported as stepper = "fake")."""
-
-    def __init__(self, cfg: Any, variant: str = "full", aero: str = "rom") -> None:
-        self.dt_s = cfg.dt_s
-        self.omega = 2 * math.pi * np.array([8.0, 40.0, 110.0])
-        self.reset()
-
-    def reset(self) -> None:
-        self.time_s, self.q, self.qdot, self.aero_force_npm = 0.0, np.zeros(3), np.zeros(3), np.zeros(3)
-
-    @property
-    def tip_w_over_L(self) -> float:
-        return float(self.q.sum())
-
-    def shape_w_over_L(self, x: np.ndarray) -> np.ndarray:
-        return self.q[0] * np.asarray(x) ** 2
-
-    def step(self, airspeed_mps: float, tip_force_npm: float) -> None:
-        acc = tip_force_npm - 0.04 * self.omega * self.qdot - self.omega**2 * self.q
-        self.qdot = self.qdot + self.dt_s * acc
-        self.q = self.q + self.dt_s * self.qdot
-        self.time_s += self.dt_s
-
-
-def _run(fast: bool, duration_s: float, airspeed_mps: float, factory: Any, sinks_dir: str | None = None) -> dict[str, float]:
+def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | None = None) -> dict[str, float]:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -53,7 +25,7 @@ def _run(fast: bool, duration_s: float, airspeed_mps: float, factory: Any, sinks
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=random.randint(201, 230))
     node = RigNode(
-        stepper_factory=factory, context=ctx,
+        context=ctx,
         parameter_overrides=[
             Parameter("fast", value=fast),
             Parameter("tunnel.time_constant_s", value=0.2),
@@ -86,18 +58,11 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
     """Real-time run of ``duration_s`` (default rates: 500 Hz publish, 2048 Hz physics) at ``airspeed_mps``
     (above flutter: LCO), then a fast-mode run of ``fast_duration_s``."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    try:
-        import panel_rig.model.stepper  # noqa: F401
-
-        factory, kind = None, "real"
-    except ImportError:
-        factory, kind = _Oscillator, "fake"
-    rt = _run(False, duration_s, airspeed_mps, factory)
-    fast = _run(True, fast_duration_s, airspeed_mps, factory)
+    rt = _run(False, duration_s, airspeed_mps)
+    fast = _run(True, fast_duration_s, airspeed_mps)
     with tempfile.TemporaryDirectory() as tmp:  # recording (rosbag2 MCAP) and Rerun (.rrd) both on
-        fast_sinks = _run(True, fast_duration_s, airspeed_mps, factory, sinks_dir=tmp)
+        fast_sinks = _run(True, fast_duration_s, airspeed_mps, sinks_dir=tmp)
     return {
-        "stepper": kind,
         "airspeed_mps": airspeed_mps,
         "duration_s": duration_s,
         "realtime_factor": round(rt["realtime_factor"], 4),

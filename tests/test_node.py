@@ -6,7 +6,6 @@ tests; signal and startup tests start their own short-lived processes.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import random
@@ -44,45 +43,15 @@ from panel_rig.rig.safety import SafetyLimits
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON = sys.executable
 PARAMS = ROOT / "config" / "tang_dowell_2002.yaml"
-REAL_STEPPER = importlib.util.find_spec("panel_rig.model.stepper") is not None
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 TAU_S = 0.5
 PUBLISH_HZ = 100.0
 FAST_CAP = 8.0  # fast node's real-time factor cap, so this Python client receives (nearly) every reading
 
 
-class FakeStepper:
-    """Stand-in for panel_rig.model.stepper.Stepper in the node process: three damped oscillators."""
-
-    def __init__(self, cfg: Any, variant: str = "full", aero: str = "rom") -> None:
-        self.dt_s = cfg.dt_s
-        self.omega = 2 * math.pi * np.array([8.0, 40.0, 110.0])
-        self.reset()
-
-    def reset(self) -> None:
-        self.time_s = 0.0
-        self.q = np.zeros(3)
-        self.qdot = np.zeros(3)
-        self.aero_force_npm = np.zeros(3)
-
-    @property
-    def tip_w_over_L(self) -> float:
-        return float(self.q.sum())
-
-    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
-        return self.q[0] * np.asarray(x_over_L) ** 2
-
-    def step(self, airspeed_mps: float, tip_force_npm: float) -> None:
-        self.aero_force_npm = -1e-3 * airspeed_mps * self.qdot
-        acc = tip_force_npm + self.aero_force_npm - 0.04 * self.omega * self.qdot - self.omega**2 * self.q
-        self.qdot = self.qdot + self.dt_s * acc
-        self.q = self.q + self.dt_s * self.qdot
-        self.time_s += self.dt_s
-
-
 LAUNCHER = (
-    "import sys; sys.path.insert(0, {tests!r}); import test_node; from panel_rig.ros.node import main; "
-    "sys.exit(main(sys.argv[1:], stepper_factory=None if test_node.REAL_STEPPER else test_node.FakeStepper))"
+    "import sys; from panel_rig.ros.node import main; "
+    "sys.exit(main(sys.argv[1:]))"
 )
 
 
@@ -107,7 +76,7 @@ def node_cmd(*params: str) -> list[str]:
     args = ["--ros-args", "-r", "__ns:=/rig", "--params-file", str(PARAMS_FILE[0])]
     for p in params:
         args += ["-p", p]
-    return [PYTHON, "-c", LAUNCHER.format(tests=str(ROOT / "tests")), *args]
+    return [PYTHON, "-c", LAUNCHER, *args]
 
 
 def shm_files() -> set[str]:
@@ -486,8 +455,6 @@ def offline_lco(cfg: Any, airspeed_mps: float) -> tuple[bool, float, float]:
 
 def test_lco_matches_offline_stepper(fast_node: subprocess.Popen, client: Client) -> None:
     """Above flutter, the tip RMS and frequency from the topics match the same Stepper run offline."""
-    if not REAL_STEPPER:
-        pytest.skip("needs panel_rig.model.stepper")
     cfg = load_config()
     for airspeed in LCO_CANDIDATES_MPS:  # the first airspeed with a steady LCO inside the safety limit
         steady, rms_off, f_off = offline_lco(cfg, airspeed)
