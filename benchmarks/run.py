@@ -23,6 +23,7 @@ from panel_rig.analysis.forced import BANDS_HZ, forced_sweep  # noqa: E402
 from panel_rig.analysis.lco import lco_sweep  # noqa: E402
 from panel_rig.config import load_config  # noqa: E402
 from panel_rig.model.aeroelastic import AeroelasticModel  # noqa: E402
+from panel_rig.model.options import PAPER_VARIANTS  # noqa: E402
 from panel_rig.model.stepper import Stepper  # noqa: E402
 
 
@@ -64,7 +65,7 @@ def main() -> int:
     lco_sweep(cfg, np.linspace(12.0, 32.0, 21) * fp.speed_mps / 12.5, 30.0, "full", model=model)
     out["fig8_sweep_21x30s_wall_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    for var in ("full", "stiffness", "inertia", "linear"):
+    for var in PAPER_VARIANTS:
         for lo, hi in BANDS_HZ:
             forced_sweep(cfg, lo, hi, 0.1, var, model=model)
     out["forced_protocol_4x2_wall_s"] = time.perf_counter() - t0

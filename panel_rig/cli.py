@@ -14,6 +14,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from panel_rig.config import ConfigError, PanelConfig, load_config
+from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 
 
 class UsageError(Exception):
@@ -260,12 +261,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_flutter)
 
     def model_opts(p: argparse.ArgumentParser, aero: bool = True) -> None:
-        p.add_argument("--variant", choices=("full", "stiffness", "inertia", "linear"), default="full")
-        p.add_argument("--scheme", choices=("implicit", "paper", "paper_literal"), default="implicit",
+        p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT)
+        p.add_argument("--scheme", choices=SCHEMES, default=DEFAULT_SCHEME,
                        help="implicit: consistent midpoint; paper: Eq. (24) nonlinear mass at t; "
                             "paper_literal: dM multiplying only the new state")
         if aero:
-            p.add_argument("--aero", choices=("rom", "full"), default="rom")
+            p.add_argument("--aero", choices=RIG_AERO_MODELS, default=DEFAULT_AERO)
         p.add_argument("--plot", metavar="FILE.png")
 
     p = sub.add_parser("lco", help="limit-cycle run at one airspeed (Figs. 4, 6, 7)")

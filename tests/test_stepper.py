@@ -124,6 +124,30 @@ def test_batch_form_matches_single_runs(cfg, model):
     assert batch.diverged[-1] and not batch.diverged[0]
 
 
+def test_sampled_march_equals_plain_march(cfg, model):
+    """advance_sampled (the node's block march) gives advance's tip, states and aero force, bit for bit."""
+    rng = np.random.default_rng(3)
+    n = 3000
+    U = np.linspace(9.0, 12.0, n)
+    F = 0.05 * rng.standard_normal(n)
+    ends = np.array([1, 7, 500, 1501, 2999, 3000])
+    a, b = (Stepper(cfg, "full", "rom", model=model) for _ in range(2))
+    for st in (a, b):
+        st.reset(q=[0.0, 2e-3, 0.0])
+    run = a.advance_sampled(U, F, ends)
+    assert run.ok and run.steps_done == n and run.samples_done == ends.size
+    tips, start = [], 0
+    for k, end in enumerate(ends):
+        tips.append(b.advance(end - start, U[start:end], F[start:end]))
+        start = end
+        np.testing.assert_array_equal(run.q[k], b.q)
+        np.testing.assert_array_equal(run.qdot_per_s[k], b.qdot)
+        np.testing.assert_allclose(run.aero_force_npm[k], b.aero_force_npm, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(run.tip_w_over_L, np.concatenate(tips))
+    np.testing.assert_array_equal(a.xi, b.xi)
+    assert a.time_s == pytest.approx(b.time_s)
+
+
 def test_C2_lco_mode_shape_has_node_near_tip(cfg, model, u_c3):
     """C2: the RMS of w/L along the panel has an interior node near x/L = 0.8 (tolerance 0.1)."""
     from panel_rig.analysis.lco import rms_shape

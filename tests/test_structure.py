@@ -5,7 +5,8 @@ import pytest
 from scipy.integrate import cumulative_simpson, simpson
 
 from panel_rig.config import load_config
-from panel_rig.model.stepper import VARIANTS, Stepper
+from panel_rig.model.options import VARIANTS
+from panel_rig.model.stepper import Stepper
 from panel_rig.model.structure import build_structure, mode_shapes, stiffness_tensor
 
 PAPER_HZ = np.array([4.13, 25.85, 71.67])  # N1

@@ -24,11 +24,11 @@ from panel_rig.analysis.lco import run_lco  # noqa: E402
 from panel_rig.analysis.signals import window_rms  # noqa: E402
 from panel_rig.config import PanelConfig, load_config  # noqa: E402
 from panel_rig.model.aeroelastic import AeroelasticModel  # noqa: E402
+from panel_rig.model.options import SCHEMES  # noqa: E402
 from panel_rig.model.stepper import Stepper  # noqa: E402
 from panel_rig.model.structure import mode_shapes  # noqa: E402
 
 DT_FACTORS = (1, 2, 4)
-SCHEMES = ("implicit", "paper", "paper_literal")
 
 
 def field_energy_j(cfg: PanelConfig, q: np.ndarray, qdot: np.ndarray) -> float:

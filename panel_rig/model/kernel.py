@@ -17,12 +17,54 @@ The 3x3 structural system is solved by a chord-Newton iteration.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
+
+
+class KernelModel(NamedTuple):
+    """Everything constant in a march, handed to the compiled kernels as one argument (SI units).
+
+    Structure (Eqs. 19-22): ``M0`` = M + Ma (kg/m, modal), ``C`` structural damping (kg/(m s)), ``K`` structural
+    stiffness (N/m^2 per unit modal coordinate), ``K_nl``/``P_nl`` the nonlinear stiffness and inertia tensors
+    scaled by ``k_scale`` (D/L) and ``m_scale`` (m_p L^3); ``use_k``/``use_m`` switch them (the variant);
+    ``mass_mode`` where dM(q) is evaluated (MASS_*). Aero ROM (Eq. 25, convective form): ``Ca`` and ``Ka``
+    (scaled by U and U^2 per step), ``Qxi``, ``Gv``, ``Gs`` and the block-diagonal aero eigenvalues
+    (``blk_off``, ``blk_len``, ``lam_a``, ``lam_b``, scaled by U/dx per step). ``f_vec``: generalised force per
+    N/m at the trailing edge; ``tip_vec``: tip w/L per modal coordinate; ``tip_bound``: |tip w/L| that stops a
+    march; ``tol``: Newton tolerance; ``dt`` the step (s) and ``dx`` the vortex spacing (m).
+    """
+
+    dt: float
+    dx: float
+    M0: np.ndarray
+    C: np.ndarray
+    Ca: np.ndarray
+    K: np.ndarray
+    Ka: np.ndarray
+    Qxi: np.ndarray
+    Gv: np.ndarray
+    Gs: np.ndarray
+    blk_off: np.ndarray
+    blk_len: np.ndarray
+    lam_a: np.ndarray
+    lam_b: np.ndarray
+    K_nl: np.ndarray
+    P_nl: np.ndarray
+    k_scale: float
+    m_scale: float
+    use_k: bool
+    use_m: bool
+    mass_mode: int
+    f_vec: np.ndarray
+    tip_vec: np.ndarray
+    tip_bound: float
+    tol: float
 
 
 @njit(cache=True)
@@ -112,13 +154,16 @@ def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
 
 
 @njit(cache=True)
-def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a, lam_b,
-          K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
-          tip_out):
-    """Advance (q, v, xi) in place over len(U_seq) steps; tip w/L of each step into tip_out.
+def march(q, v, xi, U_seq, F_seq, km, tip_out):
+    """Advance (q, v, xi) in place over len(U_seq) steps of the :class:`KernelModel` ``km``; tip w/L of each
+    step into tip_out.
 
     Returns (status, steps_done): status OK, NON_FINITE or OVER_BOUND (state left at the last good step).
     """
+    dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs = km.dt, km.dx, km.M0, km.C, km.Ca, km.K, km.Ka, km.Qxi, km.Gv, km.Gs
+    blk_off, blk_len, lam_a, lam_b = km.blk_off, km.blk_len, km.lam_a, km.lam_b
+    K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
+    mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
     n = q.shape[0]
     r = xi.shape[0]
     h = 0.5 * dt
@@ -231,26 +276,20 @@ def march(q, v, xi, U_seq, F_seq, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off
 
 
 @njit(cache=True)
-def march_batch(q, v, xi, U_runs, F_runs, active, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a,
-                lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
-                tip_out, status_out):
+def march_batch(q, v, xi, U_runs, F_runs, active, km, tip_out, status_out):
     """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps). Runs with
     active[b] False are skipped; a run that leaves the physical range gets its status and is deactivated."""
     for b in range(q.shape[0]):
         if not active[b]:
             continue
-        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off,
-                      blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec,
-                      tip_bound, tol, tip_out[b])
+        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], km, tip_out[b])
         status_out[b] = st
         if st != OK:
             active[b] = False
 
 
 @njit(cache=True)
-def march_sampled(q, v, xi, U_seq, F_seq, ends, dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs, blk_off, blk_len, lam_a,
-                  lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode, f_vec, tip_vec, tip_bound, tol,
-                  tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
+def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
     """:func:`march` over segments ending at the increasing step counts ``ends`` (each >= 1 step), keeping
     the state before and after the last step of each segment (for the aero force at a sample).
 
@@ -260,17 +299,13 @@ def march_sampled(q, v, xi, U_seq, F_seq, ends, dt, dx, M0, C, Ca, K, Ka, Qxi, G
     for s in range(ends.shape[0]):
         end = ends[s]
         if end - 1 > start:
-            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], dt, dx, M0, C, Ca, K, Ka, Qxi,
-                             Gv, Gs, blk_off, blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m,
-                             mass_mode, f_vec, tip_vec, tip_bound, tol, tip_out[start:end - 1])
+            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1])
             if st != OK:
                 return st, start + done, s
         q_pre[s] = q
         v_pre[s] = v
         xi_pre[s] = xi
-        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs,
-                         blk_off, blk_len, lam_a, lam_b, K_nl, P_nl, k_scale, m_scale, use_k, use_m, mass_mode,
-                         f_vec, tip_vec, tip_bound, tol, tip_out[end - 1:end])
+        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end])
         if st != OK:
             return st, end - 1, s
         q_post[s] = q

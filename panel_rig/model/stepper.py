@@ -15,16 +15,10 @@ import numpy as np
 from panel_rig.config import PanelConfig
 from panel_rig.model import kernel
 from panel_rig.model.aeroelastic import AeroelasticModel
+from panel_rig.model.options import AERO_MODELS, SCHEMES, VARIANTS
 from panel_rig.model.structure import mode_shapes
 
-VARIANTS = {  # name -> (stiffness nonlinearity F_K, inertia nonlinearity dM and F_M)
-    "full": (True, True),
-    "stiffness": (True, False),
-    "inertia": (False, True),
-    "linear": (False, False),
-}
-AERO = ("rom", "full", "none")
-SCHEMES = {"implicit": kernel.MASS_MIDPOINT, "paper": kernel.MASS_AT_START, "paper_literal": kernel.MASS_LITERAL}
+MASS_MODES = dict(zip(SCHEMES, (kernel.MASS_MIDPOINT, kernel.MASS_AT_START, kernel.MASS_LITERAL)))
 NEWTON_TOL = 1e-12
 
 
@@ -109,8 +103,8 @@ class Stepper:
                  model: AeroelasticModel | None = None, dt_s: float | None = None):
         if variant not in VARIANTS:
             raise ValueError(f"variant must be one of {tuple(VARIANTS)}, got {variant!r}")
-        if aero not in AERO:
-            raise ValueError(f"aero must be one of {AERO}, got {aero!r}")
+        if aero not in AERO_MODELS:
+            raise ValueError(f"aero must be one of {AERO_MODELS}, got {aero!r}")
         if scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}")
         self.cfg = cfg
@@ -119,9 +113,14 @@ class Stepper:
         self.dt_s = float(dt_s if dt_s is not None else cfg.dt_s)
         self.mats = stepper_matrices(self.model, aero)
         s = self.model.structure
-        self._use_k, self._use_m = VARIANTS[variant]
+        use_k, use_m = VARIANTS[variant]
         self._tip_vec = mode_shapes(s.n_modes, np.array([1.0]))[:, 0]
-        self._f_vec = cfg.panel_length_m * self._tip_vec  # generalised force per N/m at the trailing edge
+        m = self.mats
+        self.kernel_model = kernel.KernelModel(
+            self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b,
+            s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg, use_k, use_m, MASS_MODES[scheme],
+            cfg.panel_length_m * self._tip_vec,  # generalised force per N/m at the trailing edge
+            self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL)
         self.reset()
 
     # ---- state ------------------------------------------------------------------------------------
@@ -134,13 +133,6 @@ class Stepper:
         self.time_s = 0.0
         self.steps = 0
         self._last = (0.0, np.zeros(n), np.zeros(n), np.zeros_like(self.xi))  # U, q, v, xi before the last step
-
-    def get_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        return self.q.copy(), self.qdot.copy(), self.xi.copy(), self.time_s
-
-    def set_state(self, state: tuple[np.ndarray, np.ndarray, np.ndarray, float]) -> None:
-        q, v, xi, t = state
-        self.q, self.qdot, self.xi, self.time_s = q.copy(), v.copy(), xi.copy(), float(t)
 
     @property
     def n_modes(self) -> int:
@@ -185,12 +177,7 @@ class Stepper:
         return tip
 
     def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray) -> None:
-        m, s = self.mats, self.model.structure
-        status, done = kernel.march(
-            self.q, self.qdot, self.xi, U, F, self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs,
-            m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg,
-            self._use_k, self._use_m, SCHEMES[self.scheme], self._f_vec, self._tip_vec,
-            self.cfg.max_tip_w_over_L, NEWTON_TOL, tip)
+        status, done = kernel.march(self.q, self.qdot, self.xi, U, F, self.kernel_model, tip)
         self.steps += done
         self.time_s += done * self.dt_s
         if status != kernel.OK:
@@ -219,11 +206,9 @@ class Stepper:
         tip = np.empty(U.shape[0])
         q_pre, v_pre, q_post, v_post = (np.empty((k, n)) for _ in range(4))
         xi_pre, xi_post = np.empty((k, r)), np.empty((k, r))
-        m, s = self.mats, self.model.structure
+        m = self.mats
         status, done, segs = kernel.march_sampled(
-            self.q, self.qdot, self.xi, U, F, ends, self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv,
-            m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg,
-            self._use_k, self._use_m, SCHEMES[self.scheme], self._f_vec, self._tip_vec, bound, NEWTON_TOL, tip,
+            self.q, self.qdot, self.xi, U, F, ends, self.kernel_model._replace(tip_bound=bound), tip,
             q_pre, v_pre, xi_pre, q_post, v_post, xi_post)
         self.steps += done
         self.time_s += done * self.dt_s
@@ -269,10 +254,6 @@ class BatchStepper:
         if not (np.all(np.isfinite(U)) and np.all(U >= 0) and np.all(np.isfinite(F))):
             raise ValueError("airspeed must be finite and >= 0, tip force finite")
         tip = np.full((B, n_steps), np.nan)
-        t, m, s = self.t, self.t.mats, self.t.model.structure
-        kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, t.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka,
-                           m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b, s.K_nl, s.P_nl,
-                           s.stiffness_scale_n, s.modal_mass_kg, t._use_k, t._use_m, SCHEMES[t.scheme], t._f_vec,
-                           t._tip_vec, t.cfg.max_tip_w_over_L, NEWTON_TOL, tip, self.status)
-        self.time_s += n_steps * t.dt_s
+        kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, self.t.kernel_model, tip, self.status)
+        self.time_s += n_steps * self.t.dt_s
         return tip

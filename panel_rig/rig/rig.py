@@ -151,10 +151,6 @@ class Rig:
             self.advance_samples([n])
         return max(n, 0)
 
-    def steps_until(self, time_s: float) -> int:
-        """Whole steps from now to ``time_s`` (as :meth:`advance_to` counts them; >= 0)."""
-        return max(math.floor((time_s - self._time_s) / self.dt_s + 1e-6), 0)
-
     def advance_samples(self, counts: Sequence[int]) -> ReadingBlock:
         """Run ``counts[i]`` steps, then take sample i; all samples in one block.
 

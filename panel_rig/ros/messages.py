@@ -16,7 +16,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from panel_rig.rig.reading import Reading, ReadingBlock
+from panel_rig.rig.reading import ReadingBlock
 
 FRAME_ID = "panel_rig"
 
@@ -45,34 +45,6 @@ def _finite(values: np.ndarray) -> list[float]:
 
 def _f(x: float) -> float:
     return float(x) if math.isfinite(x) else 0.0
-
-
-def tip_msg(r: Reading, trailing_edge_x_m: float) -> PointStamped:
-    """Trailing-edge position: x along the chord (m), z = transverse deflection w (m)."""
-    return PointStamped(header=header(r.time_s), point=Point(x=float(trailing_edge_x_m), y=0.0, z=_f(r.tip_w_m)))
-
-
-def modal_msg(r: Reading, names: Sequence[str]) -> JointState:
-    """q_i (w/L), dq_i/dt (1/s), generalised aero force per mode."""
-    return JointState(
-        header=header(r.time_s),
-        name=list(names),
-        position=_finite(r.q),
-        velocity=_finite(r.qdot_per_s),
-        effort=_finite(r.aero_force_npm),
-    )
-
-
-def airspeed_msg(r: Reading) -> Vector3Stamped:
-    """Measured tunnel airspeed in vector.x, m/s."""
-    msg = Vector3Stamped(header=header(r.time_s))
-    msg.vector.x = _f(r.airspeed_mps)
-    return msg
-
-
-def clock_msg(time_s: float) -> Clock:
-    """/clock in simulated time."""
-    return Clock(clock=stamp(time_s))
 
 
 GREY = ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0)

@@ -36,7 +36,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
-from panel_rig.rig.reading import Reading, ReadingBlock, Sink
+from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
@@ -266,10 +266,6 @@ class RigNode(Node):
                 self.get_logger().info(f"rerun sink: {p['rerun']}")
             except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
                 self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
-
-    def add_sink(self, sink: Sink) -> None:
-        """Hook for extra consumers of readings and commands."""
-        self.rig.sinks.append(sink)
 
     def _publish(self, pub: Any, msg: Any, time_s: float, qos: str = "sensor") -> None:
         """Serialise once; the same bytes go to the topic and to every recorder."""

@@ -8,8 +8,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-VARIANTS = ("full", "stiffness", "inertia", "linear")
-AEROS = ("rom", "full")
+from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
+
 _RERUN = re.compile(r"^(off|save:.+|connect:.*)$")
 
 
@@ -59,8 +59,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
     "fast": NodeParam(False, False, _bool, "run as fast as possible and publish /clock"),
     "fast_max_realtime_factor": NodeParam(0.0, True, _number(0.0, 1e6),
                                           "fast mode: at most this many simulated s per wall s (0: no cap)"),
-    "variant": NodeParam("full", False, _one_of(VARIANTS), "model variant"),
-    "aero": NodeParam("rom", False, _one_of(AEROS), "aerodynamics: reduced-order or full vortex lattice"),
+    "variant": NodeParam(DEFAULT_VARIANT, False, _one_of(tuple(VARIANTS)), "model variant"),
+    "aero": NodeParam(DEFAULT_AERO, False, _one_of(RIG_AERO_MODELS), "aerodynamics: reduced-order or full vortex lattice"),
     "tunnel.time_constant_s": NodeParam(1.0, True, _number(0.0, 1000.0), "airspeed first-order lag, s"),
     "tunnel.max_rate_mps2": NodeParam(0.0, True, _number(0.0, 1000.0), "airspeed rate limit, m/s^2 (0: none)"),
     "safety.max_airspeed_mps": NodeParam(30.0, True, _number(0.0, 1000.0, lo_open=True), "airspeed command limit"),
