@@ -201,22 +201,32 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from panel_rig.ros.node import main as node_main
+def _node_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.node import main
 
-    return node_main(args.rest)
-
-
-def cmd_operate(args: argparse.Namespace) -> int:
-    from panel_rig.ros.operator import main as operator_main
-
-    return operator_main([args.profile, *args.rest])
+    return main(argv)
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    from panel_rig.demo import main as demo_main
+def _operator_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.operator import main
 
-    return demo_main(args.rest)
+    return main(argv)
+
+
+def _demo_main(argv: Sequence[str]) -> int:
+    from panel_rig.demo import main
+
+    return main(argv)
+
+
+#: subcommands that are programs of their own (ROS arguments included): their argv is passed on untouched
+PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
+    "run": (_node_main, "the live rig node (same as `ros2 run panel_rig rig_node`): [--fast] [--params FILE] "
+                        "[--ros-args ...]"),
+    "operate": (_operator_main, "play a test procedure over the rig's command topics: --profile FILE "
+                                "[--namespace NS] [--ros-args ...]"),
+    "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
+}
 
 
 def cmd_bag_recover(args: argparse.Namespace) -> int:
@@ -298,18 +308,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed")
     p.set_defaults(func=cmd_paper)
 
-    p = sub.add_parser("run", help="the live rig node (same as `ros2 run panel_rig rig_node`)")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="--fast, --params FILE, --ros-args ...")
-    p.set_defaults(func=cmd_run)
-
-    p = sub.add_parser("operate", help="play a test procedure over the rig's command topics")
-    p.add_argument("--profile", required=True, metavar="FILE.yaml")
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=cmd_operate)
-
-    p = sub.add_parser("demo", help="a tunnel session: node (fast) + staircase operator + recording + summary")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="--profile FILE, --out DIR, --bag-dir DIR, --max-rtf X")
-    p.set_defaults(func=cmd_demo)
+    for name, (_, text) in PROGRAMS.items():  # listed for --help; main() hands their arguments on untouched
+        sub.add_parser(name, help=text, add_help=False)
 
     p = sub.add_parser("bag", help="recording utilities")
     bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
@@ -326,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PROGRAMS:
+        return PROGRAMS[argv[0]][0](argv[1:])
     try:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)

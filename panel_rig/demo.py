@@ -80,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with open(node_log, "w") as log:
         node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", args.profile, "--namespace", "/rig",
+        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", "--profile", args.profile, "--namespace", "/rig",
                              "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
     finally:
         node_code = _stop(node)

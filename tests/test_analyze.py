@@ -260,7 +260,7 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_LOG_DIR=str(tmp / "log"))
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
-           "-p", "variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
+           "-p", "model.variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
            "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}"]
     saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
     os.environ.update({k: env[k] for k in saved})
