@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): setup.py setup.cfg package.xml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[ros,record,viz,test]'
+	$(BIN)/python -m pip install --quiet -e '.[ros,record,viz,test,study]'
 	touch $(STAMP)
 
 .venv: $(STAMP)

@@ -24,6 +24,9 @@ setup(
         "viz": ["rerun-sdk==0.41.0"],
         "test": ["pytest>=8", "ruff>=0.6", "rosbags>=0.10", "catkin_pkg>=1.0",
                  "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information"],
+        # parameter studies (panel_rig/studies, `panel-rig study`): Dask's distributed scheduler, the results as
+        # one xarray Dataset in Zarr, a progress bar
+        "study": ["dask[distributed]>=2026.1", "xarray>=2025.1", "zarr>=3", "tqdm>=4.66"],
     },
     zip_safe=True,
     maintainer="panel_rig developers",
