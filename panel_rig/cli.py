@@ -201,6 +201,14 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    try:
+        from panel_rig.studies.command import run
+    except ImportError as exc:
+        raise UsageError(f"panel-rig study needs the 'study' extra (pip install -e '.[study]'): {exc}") from None
+    return run(args)
+
+
 def _node_main(argv: Sequence[str]) -> int:
     from panel_rig.ros.node import main
 
@@ -307,6 +315,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed")
     p.set_defaults(func=cmd_paper)
+
+    p = sub.add_parser("study", help="parameter study on Dask: flutter map, uncertainty, bifurcation (docs/studies.md)")
+    p.add_argument("--spec", required=True, metavar="FILE.yaml", help="the study (kind, vary, set, ...)")
+    p.add_argument("--params", metavar="FILE", help="base ROS 2 parameters YAML (default: the paper's)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default 2)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask scheduler")
+    p.add_argument("--out", metavar="DIR", help="results.zarr, summary.json, plots (default out/study/<spec name>)")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout (no progress bar)")
+    p.set_defaults(func=cmd_study)
 
     for name, (_, text) in PROGRAMS.items():  # listed for --help; main() hands their arguments on untouched
         sub.add_parser(name, help=text, add_help=False)

@@ -1,0 +1,47 @@
+"""``panel-rig study``: read the spec, run the missing cases, write summary and figures, print the outcome."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from panel_rig.config import ConfigError
+
+
+def run(args: Any) -> int:
+    from panel_rig.studies.spec import load_spec
+
+    if args.workers is not None and not (1 <= args.workers <= 512):
+        raise ConfigError(f"--workers must be in [1, 512], got {args.workers}")
+    study = load_spec(args.spec, args.params)  # bad specs fail here, before dask is imported
+
+    from panel_rig.studies.report import plot, summarize
+    from panel_rig.studies.runner import case_records, run_study
+    out = Path(args.out) if args.out else Path("out") / "study" / Path(args.spec).stem
+    show = not args.json and sys.stderr.isatty()
+    info = run_study(study, out, workers=args.workers or (None if args.scheduler else 2), scheduler=args.scheduler,
+                     progress=show)
+    ds = info["store"].load()
+    summary = summarize(study, ds)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    files = plot(study, ds, summary, out)
+    if args.json:
+        print(json.dumps({"cases": case_records(study, ds), "wall_s": info["wall_s"], "workers": info["workers"],
+                          "computed": info["computed"], "out": str(out), "summary": summary,
+                          "plots": [str(f) for f in files]}))
+        return 0
+    print(f"{study.kind}: {len(study.cases)} cases ({info['computed']} computed now, on {info['workers']} workers) "
+          f"in {info['wall_s']:.1f} s")
+    for k, v in summary.items():
+        if k not in ("kind", "branches", "sensitivity"):
+            print(f"  {k:24s} {v}")
+    for r in summary.get("sensitivity", []):
+        print(f"  sensitivity  {r['key']:28s} {r['measure']} {r['value']:+.3f}")
+    for r in summary.get("branches", []):
+        print(f"  branch  {r}")
+    print(f"results: {info['store'].path}  (xarray.open_zarr)")
+    for f in files:
+        print(f"plot:    {f}")
+    return 0

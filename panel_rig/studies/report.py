@@ -1,0 +1,154 @@
+"""Summaries and figures of a finished study: flutter-map contours, the U_f histogram with percentiles and a
+sensitivity ranking, bifurcation diagrams with their up and down branches."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from panel_rig.studies.spec import Study
+
+PERCENTILES = (5, 25, 50, 75, 95)
+LCO_RMS = 0.005  # tip w/L RMS above which a run counts as in LCO (as panel-rig analyze)
+
+
+def _numeric(values: np.ndarray) -> bool:
+    return np.issubdtype(np.asarray(values).dtype, np.number)
+
+
+def sensitivity_ranking(study: Study, ds: Any) -> list[dict[str, Any]]:
+    """How strongly each uncertain input drives U_f: |Spearman rank correlation| for numbers, the correlation
+    ratio (eta) for choices of strings; sorted, strongest first."""
+    u = ds["flutter_speed_mps"].values
+    ok = np.isfinite(u)
+    out = []
+    for key in study.keys:
+        x = ds[key].values[ok]
+        if _numeric(x) and np.unique(x).size > 1:
+            rho = float(spearmanr(x, u[ok]).statistic)
+            out.append({"key": key, "measure": "spearman", "value": rho, "importance": abs(rho)})
+        elif np.unique(x).size > 1:
+            groups = [u[ok][x == g] for g in np.unique(x)]
+            total = np.sum((u[ok] - u[ok].mean()) ** 2)
+            between = sum(g.size * (g.mean() - u[ok].mean()) ** 2 for g in groups)
+            eta = float(np.sqrt(between / total)) if total > 0 else 0.0
+            out.append({"key": key, "measure": "eta", "value": eta, "importance": eta})
+        else:
+            out.append({"key": key, "measure": "constant", "value": 0.0, "importance": 0.0})
+    return sorted(out, key=lambda r: -r["importance"])
+
+
+def summarize(study: Study, ds: Any) -> dict[str, Any]:
+    """Headline numbers of a study (written as summary.json)."""
+    if study.kind == "bifurcation":
+        rows = []
+        for ch in study.chains:
+            row: dict[str, Any] = {"variant": ch.variant, **study.grid[ch.grid_index]}
+            for d, branch in zip(ch.directions, ch.cases):
+                u = ds["airspeed_mps"].values[list(branch)]
+                rms = ds["rms_tip_w_over_L"].values[list(branch)]
+                lco = u[np.nan_to_num(rms) >= LCO_RMS]
+                if d == "up":
+                    row["lco_onset_up_mps"] = float(lco.min()) if lco.size else None
+                else:
+                    row["lco_lowest_down_mps"] = float(lco.min()) if lco.size else None
+            up, down = row.get("lco_onset_up_mps"), row.get("lco_lowest_down_mps")
+            row["hysteresis"] = bool(up is not None and down is not None and down < up)
+            rows.append(row)
+        return {"kind": study.kind, "branches": rows, "lco_rms_threshold": LCO_RMS}
+    u = ds["flutter_speed_mps"].values
+    ok = u[np.isfinite(u)]
+    out: dict[str, Any] = {"kind": study.kind, "cases": int(u.size), "with_flutter": int(ok.size)}
+    if ok.size:
+        out.update(flutter_speed_min_mps=float(ok.min()), flutter_speed_max_mps=float(ok.max()),
+                   flutter_speed_mean_mps=float(ok.mean()), flutter_speed_sd_mps=float(ok.std(ddof=1)) if ok.size > 1
+                   else 0.0, percentiles_mps={str(p): float(np.percentile(ok, p)) for p in PERCENTILES})
+    if study.kind == "uncertainty":
+        out["sensitivity"] = sensitivity_ranking(study, ds)
+    return out
+
+
+def _axis(levels: list[Any]) -> tuple[np.ndarray, list[str] | None]:
+    if all(isinstance(v, (int, float)) for v in levels):
+        return np.asarray(levels, dtype=float), None
+    return np.arange(len(levels), dtype=float), [str(v) for v in levels]
+
+
+def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[Path]:
+    """The study's figures as PNG in out_dir."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = []
+    if study.kind == "flutter_map":
+        keys = list(study.keys)
+        shape = [len(study.levels[k]) for k in keys]
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+        for ax, var, label in zip(axes, ("flutter_speed_mps", "flutter_frequency_hz"), ("U_f, m/s", "f_f, Hz")):
+            grid = ds[var].values.reshape(shape)
+            x, xt = _axis(study.levels[keys[0]])
+            if len(keys) == 1 or shape[1] == 1:
+                ax.plot(x, grid.reshape(shape[0], -1)[:, 0], "o-")
+                ax.set_ylabel(label)
+            else:
+                y, yt = _axis(study.levels[keys[1]])
+                z = grid[(slice(None), slice(None)) + (0,) * (len(keys) - 2)]
+                cs = ax.contourf(x, y, z.T, levels=14, cmap="viridis")
+                ax.contour(cs, colors="k", linewidths=0.4)
+                fig.colorbar(cs, ax=ax, label=label)
+                ax.set_ylabel(keys[1])
+                if yt:
+                    ax.set_yticks(y, yt)
+            if xt:
+                ax.set_xticks(x, xt)
+            ax.set_xlabel(keys[0])
+            rest = ", ".join(f"{k} = {study.levels[k][0]}" for k in keys[2:])
+            ax.set_title(f"{label.split(',')[0]} ({study.options['aero']} aero){'; ' + rest if rest else ''}")
+        files.append(out_dir / "flutter_map.png")
+    elif study.kind == "uncertainty":
+        u = ds["flutter_speed_mps"].values
+        u = u[np.isfinite(u)]
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+        a1.hist(u, bins=max(5, min(60, int(np.sqrt(max(u.size, 1))) * 2)), color="0.6")
+        for p, v in summary.get("percentiles_mps", {}).items():
+            a1.axvline(v, color="C3" if p == "50" else "C0", ls="-" if p == "50" else "--")
+            if p in ("5", "50", "95"):
+                a1.text(v, a1.get_ylim()[1] * 0.95, f"P{p}\n{v:.2f}", fontsize=7, ha="center", va="top")
+        a1.set_xlabel("flutter speed U_f, m/s")
+        a1.set_ylabel("cases")
+        a1.set_title(f"U_f over {u.size} samples (seed {study.options['seed']})")
+        rank = summary.get("sensitivity", [])
+        a2.barh([r["key"] for r in rank][::-1], [r["importance"] for r in rank][::-1], color="C0")
+        for i, r in enumerate(rank[::-1]):
+            a2.text(r["importance"], i, f" {r['measure']} {r['value']:+.2f}", va="center", fontsize=7)
+        a2.set_xlim(0, 1.15)
+        a2.set_xlabel("|rank correlation| with U_f")
+        a2.set_title("sensitivity ranking")
+        files.append(out_dir / "uncertainty.png")
+    else:
+        n = len(study.grid)
+        fig, axes = plt.subplots(1, n, figsize=(6 * n, 4.2), squeeze=False)
+        for ci, ch in enumerate(study.chains):
+            ax = axes[0, ch.grid_index]
+            color = f"C{study.options['variants'].index(ch.variant)}"
+            for d, branch in zip(ch.directions, ch.cases):
+                u = ds["airspeed_mps"].values[list(branch)]
+                rms = ds["rms_tip_w_over_L"].values[list(branch)]
+                ax.plot(u, rms, ("^-" if d == "up" else "v--"), color=color, label=f"{ch.variant}, {d}",
+                        mfc="none" if d == "down" else color)
+            point = study.grid[ch.grid_index]
+            ax.set_title(", ".join(f"{k} = {v}" for k, v in point.items()) or "bifurcation diagram")
+            ax.set_xlabel("airspeed, m/s")
+            ax.set_ylabel("RMS tip w/L")
+            ax.legend(fontsize=7)
+        files.append(out_dir / "bifurcation.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    return files

@@ -1,0 +1,189 @@
+"""Run a study on Dask: a LocalCluster (N worker processes, one thread each) or an existing scheduler.
+
+Only the missing cases of the output store are submitted (resume after Ctrl-C, a crash or a lost worker).
+Results are written to the store as they arrive (flushed at most every ``flush_s`` seconds and on the way out,
+Ctrl-C included). Dask re-runs the tasks of a worker that dies; a case has one slot in the store, so a re-run
+cannot duplicate it. Each worker warms the kernels once, in a worker plugin, when it starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+from dask.distributed import Client, LocalCluster, WorkerPlugin, as_completed
+
+from panel_rig.config import config_from_flat
+from panel_rig.studies import cases as C
+from panel_rig.studies.spec import Chain, Study
+from panel_rig.studies.store import Store
+
+STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: "none below 60 m/s", C.FAILED: "failed"}
+
+
+class WarmUp(WorkerPlugin):
+    """Warm the compiled kernels once in every worker process (also in one that the nanny restarts)."""
+
+    name = "panel-rig-warm-up"
+    idempotent = True
+
+    def setup(self, worker: Any) -> None:
+        C.warm_up()
+
+
+@contextlib.contextmanager
+def connect(workers: int | None = None, scheduler: str | None = None, timeout_s: float = 60.0) -> Iterator[Client]:
+    """A client of ``scheduler`` (an address), else of a new LocalCluster with ``workers`` processes."""
+    if scheduler:
+        client = Client(scheduler, timeout=f"{timeout_s}s")
+        try:
+            client.wait_for_workers(1, timeout=timeout_s)
+            yield client
+        finally:
+            client.close()
+        return
+    cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    try:
+        with Client(cluster) as client:
+            yield client
+    finally:
+        cluster.close()
+
+
+def n_workers(client: Client) -> int:
+    return len(client.scheduler_info(n_workers=-1)["workers"])
+
+
+def _state_len(study: Study) -> int:
+    aero = study.options["aero"]
+    return max(C.state_size(config_from_flat(study.config_values(p)), aero) for p in study.grid)
+
+
+def _submit_flutter(client: Client, study: Study, missing: np.ndarray) -> dict[Any, list[int]]:
+    """One task per ``batch`` consecutive missing cases."""
+    size = study.options["batch"]
+    groups = [missing[i : i + size].tolist() for i in range(0, missing.size, size)]
+    keys = [f"flutter-{study.fingerprint}-{g[0]}-{len(g)}" for g in groups]
+    futures = client.map(C.flutter_batch, [study.base] * len(groups),
+                         [[{k: study.cases[i][k] for k in study.keys} for i in g] for g in groups],
+                         [study.options["aero"]] * len(groups), [study.options["formulation"]] * len(groups),
+                         key=keys, pure=False)
+    return dict(zip(futures, groups))
+
+
+def _submit_chain(client: Client, study: Study, chain: Chain, ci: int, store: Store, done: np.ndarray
+                  ) -> dict[Any, list[int]]:
+    """The links of one bifurcation chain from the first step not done in every branch, each link depending on
+    the previous one (it continues from that LCO); the first resumes from the stored states."""
+    steps = len(chain.cases[0])
+    k0 = min(int(np.argmin(np.append(done[list(b)], False))) for b in chain.cases)
+    if k0 >= steps:
+        return {}
+    values = study.config_values(study.grid[chain.grid_index])
+    prev: Any = None
+    if k0 > 0:
+        n_state = C.state_size(config_from_flat(values), study.options["aero"])
+        last = [b[k0 - 1] for b in chain.cases]
+        prev = {"state": np.asarray(store.group["state"].get_orthogonal_selection((last, slice(0, n_state)))),
+                "diverged": np.asarray(store.group["diverged"].get_orthogonal_selection((last,)), dtype=bool)}
+    o = study.options
+    out = {}
+    for k in range(k0, steps):
+        idx = [b[k] for b in chain.cases]
+        speeds = [study.cases[i]["airspeed_mps"] for i in idx]
+        prev = client.submit(C.bifurcation_link, values, chain.variant, o["aero"], o["scheme"], speeds,
+                             o["duration_s"], prev, key=f"bifurcation-{study.fingerprint}-{ci}-{k}", pure=False)
+        out[prev] = idx
+    return out
+
+
+def _results(study: Study, value: Any, idx: list[int], state_len: int) -> dict[int, dict[str, Any]]:
+    if study.kind != "bifurcation":
+        return dict(zip(idx, value))
+    out = {}
+    for b, i in enumerate(idx):
+        state = np.full(state_len, np.nan)
+        state[: value["state"].shape[1]] = value["state"][b]
+        out[i] = {**value["results"][b], "state": state}
+    return out
+
+
+def run_study(study: Study, out_dir: str | Path, workers: int | None = None, scheduler: str | None = None,
+              progress: bool = False, flush_s: float = 0.5,
+              on_flush: Callable[[Client, int], None] | None = None) -> dict[str, Any]:
+    """Compute the missing cases of ``study`` into ``out_dir``; returns {store, computed, wall_s, workers}.
+
+    ``on_flush(client, n_written)`` is called after each write (tests use it to interrupt or to kill a worker).
+    """
+    t0 = time.perf_counter()
+    store = Store.open(out_dir, study, state_len=lambda: _state_len(study))
+    missing = store.missing()
+    info: dict[str, Any] = {"store": store, "computed": 0, "workers": 0, "cases": len(study.cases)}
+    if missing.size:
+        from tqdm import tqdm
+
+        state_len = store.group["state"].shape[1] if study.kind == "bifurcation" else 0
+        with connect(workers, scheduler) as client, tqdm(
+                total=len(study.cases), initial=len(study.cases) - missing.size, disable=not progress,
+                file=sys.stderr, desc=study.kind, unit="case", dynamic_ncols=True) as bar:
+            info["workers"] = n_workers(client)
+            client.register_plugin(WarmUp())
+            if study.kind == "bifurcation":
+                done = store.done_mask()
+                submitted: dict[Any, list[int]] = {}
+                for ci, chain in enumerate(study.chains):
+                    submitted.update(_submit_chain(client, study, chain, ci, store, done))
+            else:
+                submitted = _submit_flutter(client, study, missing)
+            pending: dict[int, dict[str, Any]] = {}
+            last = time.monotonic()
+
+            def flush() -> None:
+                nonlocal last
+                store.write(pending)
+                info["computed"] += len(pending)
+                bar.update(len(pending))
+                pending.clear()
+                last = time.monotonic()
+
+            try:
+                ac = as_completed(list(submitted))
+                for batch in ac.batches():
+                    for fut in batch:
+                        pending.update(_results(study, fut.result(), submitted.pop(fut), state_len))
+                    if time.monotonic() - last >= flush_s or ac.is_empty():
+                        flush()
+                        if on_flush:
+                            on_flush(client, info["computed"])
+            finally:
+                flush()  # what arrived is complete and valid: keep it, also on Ctrl-C or a failed task
+    info["wall_s"] = time.perf_counter() - t0
+    return info
+
+
+def case_records(study: Study, ds: Any) -> list[dict[str, Any]]:
+    """The cases as JSON-ready dicts: {"params": {...}, <results>} (NaN as null; no internal state)."""
+    def num(x: Any) -> Any:
+        x = x.item() if hasattr(x, "item") else x
+        return None if isinstance(x, float) and not np.isfinite(x) else x
+
+    records = []
+    for i, c in enumerate(study.cases):
+        rec: dict[str, Any] = {"params": {k: num(v) for k, v in c.items()}}
+        if study.kind == "bifurcation":
+            for v in ("rms_tip_w_over_L", "peak_tip_w_over_L", "dominant_frequency_hz", "steady_after_s"):
+                rec[v] = num(ds[v].values[i])
+            rec["diverged"] = bool(ds["diverged"].values[i])
+        else:
+            rec["flutter_speed_mps"] = num(ds["flutter_speed_mps"].values[i])
+            rec["flutter_frequency_hz"] = num(ds["flutter_frequency_hz"].values[i])
+            rec["dominant_mode"] = int(ds["dominant_mode"].values[i]) or None
+            rec["status"] = STATUS_NAMES[int(ds["status"].values[i])]
+        records.append(rec)
+    return records
