@@ -117,14 +117,16 @@ def _results(study: Study, value: Any, idx: list[int], state_len: int) -> dict[i
 def run_study(study: Study, out_dir: str | Path, workers: int | None = None, scheduler: str | None = None,
               progress: bool = False, flush_s: float = 0.5,
               on_flush: Callable[[Client, int], None] | None = None) -> dict[str, Any]:
-    """Compute the missing cases of ``study`` into ``out_dir``; returns {store, computed, wall_s, workers}.
+    """Compute the missing cases of ``study`` into ``out_dir``; returns {store, computed, wall_s, workers, ...}
+    (``ready_s``: time until the cluster was up and warm; ``write_s``: time spent writing the store).
 
     ``on_flush(client, n_written)`` is called after each write (tests use it to interrupt or to kill a worker).
     """
     t0 = time.perf_counter()
     store = Store.open(out_dir, study, state_len=lambda: _state_len(study))
     missing = store.missing()
-    info: dict[str, Any] = {"store": store, "computed": 0, "workers": 0, "cases": len(study.cases)}
+    info: dict[str, Any] = {"store": store, "computed": 0, "workers": 0, "cases": len(study.cases), "write_s": 0.0,
+                            "ready_s": 0.0}
     if missing.size:
         from tqdm import tqdm
 
@@ -134,6 +136,7 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
                 file=sys.stderr, desc=study.kind, unit="case", dynamic_ncols=True) as bar:
             info["workers"] = n_workers(client)
             client.register_plugin(WarmUp())
+            info["ready_s"] = time.perf_counter() - t0  # cluster up (or connected) and every worker warm
             if study.kind == "bifurcation":
                 done = store.done_mask()
                 submitted: dict[Any, list[int]] = {}
@@ -146,7 +149,9 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
 
             def flush() -> None:
                 nonlocal last
+                t = time.perf_counter()
                 store.write(pending)
+                info["write_s"] += time.perf_counter() - t
                 info["computed"] += len(pending)
                 bar.update(len(pending))
                 pending.clear()

@@ -1,0 +1,372 @@
+"""Parameter studies on Dask (issue 12): spec validation, serial = cluster case by case, resume after an
+interruption and after a partial write, a worker killed mid-study, a separately started scheduler + workers,
+flutter-map points = `panel-rig flutter`, bifurcation chains = `panel-rig lco` continued, uncertainty summary.
+
+Small and bounded: one shared LocalCluster (2 processes x 1 thread, no dashboard) for the in-process runs,
+8-case studies with the ROM flutter analysis (~0.2 s a case), every subprocess with a timeout.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import logging
+import os
+import pty
+import signal
+import struct
+import subprocess
+import sys
+import termios
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from panel_rig.config import SCHEMA, ConfigError, config_from_flat, read_params_file
+from panel_rig.model.options import VARIANTS
+from panel_rig.studies.spec import load_spec, parse_spec
+
+dask_distributed = pytest.importorskip("dask.distributed")
+
+CLI = [sys.executable, "-m", "panel_rig.cli"]
+BIN = Path(sys.executable).parent
+FLUTTER_SPEC = {
+    "kind": "flutter_map",
+    "vary": {"panel.thickness_m": [0.0003, 0.00033, 0.00036, 0.0004],
+             "panel.length_m": {"start": 0.25, "stop": 0.29, "num": 2}},
+    "set": {"aero.rom_modes": 12},
+}
+RESULTS = ("flutter_speed_mps", "flutter_frequency_hz", "dominant_mode", "status")
+
+
+def run(*args, timeout=180, **kw):
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def write_spec(path: Path, spec: dict) -> Path:
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def base():
+    from panel_rig.config import default_params_path
+
+    return read_params_file(default_params_path())
+
+
+# ---- the spec ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("change,needle", [
+    ({"colour": "red"}, "colour"),
+    ({"vary": {"panel.thicknes_m": [0.001]}}, "panel.thicknes_m"),
+    ({"set": {"aero.nonsense": 1}}, "aero.nonsense"),
+    ({"vary": {"panel.thickness_m": [-0.001]}}, "panel.thickness_m"),
+    ({"vary": {"panel.length_m": {"start": 0.2, "stop": 0.3}}}, "num"),
+    ({"vary": {"panel.length_m": {"start": 0.2, "stop": 0.3, "num": 3, "step": 1}}}, "step"),
+    ({"kind": "flutter_mapp"}, "kind"),
+    ({"aero": "none"}, "aero"),
+    ({"samples": 3}, "samples"),  # an uncertainty key in a flutter map
+])
+def test_bad_flutter_spec_names_the_key(base, change, needle):
+    with pytest.raises(ConfigError, match=needle.replace(".", r"\.")):
+        parse_spec({**FLUTTER_SPEC, **change}, base)
+
+
+@pytest.mark.parametrize("change,needle", [
+    ({"vary": {"structure.modes": {"normal": [3, 1]}}}, "choice"),
+    ({"vary": {"panel.thickness_m": {"lognormal": [1, 2]}}}, "lognormal"),
+    ({"vary": {"panel.thickness_m": {"normal": [0.00036, 0.001]}}}, "sample"),  # draws negative thicknesses
+    ({"vary": {"aero.load_point": {"choice": ["quarter", "tip"]}}}, "aero.load_point"),
+    ({"samples": 0}, "samples"),
+])
+def test_bad_uncertainty_spec_names_the_key(base, change, needle):
+    spec = {"kind": "uncertainty", "samples": 50, "seed": 1, "vary": {"air.density_kgpm3": {"uniform": [1.0, 1.3]}}}
+    with pytest.raises(ConfigError, match=needle):
+        parse_spec({**spec, **change}, base)
+
+
+def test_bad_bifurcation_spec_names_the_key(base):
+    spec = {"kind": "bifurcation", "airspeeds": [10.0, 12.0], "duration_s": 1.0}
+    with pytest.raises(ConfigError, match="variants"):
+        parse_spec({**spec, "variants": ["full", "elastica_typo"]}, base)
+    with pytest.raises(ConfigError, match="direction"):
+        parse_spec({**spec, "direction": "sideways"}, base)
+    with pytest.raises(ConfigError, match="airspeeds"):
+        parse_spec({**spec, "airspeeds": [12.0, 10.0]}, base)
+
+
+def test_unknown_spec_key_exits_2_with_one_line(tmp_path):
+    spec = write_spec(tmp_path / "s.yaml", {**FLUTTER_SPEC, "vary": {"panel.thickness_m": [1e-3], "tunnel.x": [1]}})
+    out = run("study", "--spec", str(spec), "--out", str(tmp_path / "o"), timeout=60)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "tunnel.x" in lines[0] and "Traceback" not in out.stderr, out.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_spec_expands_grids_samples_and_chains(base):
+    s = parse_spec(FLUTTER_SPEC, base)
+    assert len(s.cases) == 8 and s.keys == ("panel.thickness_m", "panel.length_m")
+    assert [c["panel.length_m"] for c in s.cases[:2]] == [0.25, 0.29]  # last key fastest
+    assert s.base["aero.rom_modes"] == 12
+    unc = {"kind": "uncertainty", "samples": 40, "seed": 7,
+           "vary": {"air.density_kgpm3": {"normal": [1.2, 0.02]}, "structure.damping_ratio": {"uniform": [0, 0.01]},
+                    "aero.load_point": {"choice": ["quarter", "center"]}}}
+    a, b, c = parse_spec(unc, base), parse_spec(unc, base), parse_spec({**unc, "seed": 8}, base)
+    assert a.cases == b.cases and a.fingerprint == b.fingerprint
+    assert a.cases != c.cases and a.fingerprint != c.fingerprint
+    rho = np.array([x["air.density_kgpm3"] for x in a.cases])
+    assert abs(rho.mean() - 1.2) < 4 * 0.02 / np.sqrt(40) and 0.01 < rho.std() < 0.03
+    assert {x["aero.load_point"] for x in a.cases} == {"quarter", "center"}
+    bif = parse_spec({"kind": "bifurcation", "airspeeds": {"start": 9, "stop": 12, "num": 4},
+                      "variants": list(VARIANTS), "duration_s": 2}, base)
+    assert len(bif.chains) == len(VARIANTS) and len(bif.cases) == 2 * 4 * len(VARIANTS)
+    up, down = bif.chains[0].cases
+    assert [bif.cases[i]["airspeed_mps"] for i in up] == [9, 10, 11, 12]
+    assert [bif.cases[i]["airspeed_mps"] for i in down] == [12, 11, 10, 9]
+    assert all(k in SCHEMA for k in s.keys)
+
+
+# ---- running ----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def cluster():
+    """One LocalCluster for the in-process runs (2 worker processes, 1 thread each, no dashboard)."""
+    from dask.distributed import LocalCluster
+
+    c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                     silence_logs=logging.ERROR)
+    yield c.scheduler_address
+    c.close()
+
+
+@pytest.fixture(scope="module")
+def flutter_spec(tmp_path_factory):
+    return write_spec(tmp_path_factory.mktemp("spec") / "map.yaml", FLUTTER_SPEC)
+
+
+@pytest.fixture(scope="module")
+def serial(flutter_spec, tmp_path_factory):
+    """The study through the CLI on one worker (--workers 1), as JSON."""
+    out = run("study", "--spec", str(flutter_spec), "--workers", "1", "--json",
+              "--out", str(tmp_path_factory.mktemp("serial")))
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "%|" not in out.stderr  # no progress bar with --json
+    return json.loads(out.stdout)
+
+
+def results_of(ds) -> list[tuple]:
+    return [tuple(ds[v].values[i].item() for v in RESULTS) for i in range(ds.sizes["case"])]
+
+
+def serial_results(serial) -> list[tuple]:
+    status = {"flutter": 0, "none below 60 m/s": 1, "failed": 2}
+    return [(c["flutter_speed_mps"], c["flutter_frequency_hz"], c["dominant_mode"] or 0, status[c["status"]])
+            for c in serial["cases"]]
+
+
+def test_serial_json_shape(serial, flutter_spec):
+    study = load_spec(flutter_spec)
+    assert serial["workers"] == 1 and serial["computed"] == 8 and serial["wall_s"] > 0
+    assert [c["params"] for c in serial["cases"]] == study.cases
+    for c in serial["cases"]:
+        assert c["status"] == "flutter" and 5 < c["flutter_speed_mps"] < 20 and 10 < c["flutter_frequency_hz"] < 40
+    u = np.array([c["flutter_speed_mps"] for c in serial["cases"]]).reshape(4, 2)
+    assert np.all(np.diff(u, axis=0) > 0) and np.all(np.diff(u, axis=1) < 0)  # thicker: faster; longer: slower
+    assert Path(serial["out"], "flutter_map.png").stat().st_size > 10_000
+
+
+def test_flutter_map_points_equal_panel_rig_flutter(serial):
+    """Two points of the map against the flutter command with the same settings (ROM, Ra = 12)."""
+    procs = []
+    for i in (0, 5):
+        sets = [a for k, v in serial["cases"][i]["params"].items() for a in ("--set", f"{k}={v}")]
+        procs.append(subprocess.Popen([*CLI, "flutter", "--json", "--aero", "rom", "--rom-modes", "12", *sets],
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    for i, p in zip((0, 5), procs):
+        stdout, stderr = p.communicate(timeout=120)
+        assert p.returncode == 0, stderr
+        ref = json.loads(stdout)
+        case = serial["cases"][i]
+        # brentq's xtol is 1e-6 m/s; BLAS threading may change the last bits of the eigenvalues
+        assert case["flutter_speed_mps"] == pytest.approx(ref["flutter_speed_mps"], abs=2e-6)
+        assert case["flutter_frequency_hz"] == pytest.approx(ref["flutter_frequency_hz"], rel=1e-6)
+        assert case["dominant_mode"] == ref["dominant_mode"]
+
+
+def test_cluster_equals_serial_and_resume_computes_only_missing(serial, flutter_spec, cluster, tmp_path):
+    from panel_rig.studies.runner import run_study
+
+    study = load_spec(flutter_spec)
+
+    def interrupt(client, written):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, tmp_path, scheduler=cluster, flush_s=0.0, on_flush=interrupt)
+    from panel_rig.studies.store import Store
+
+    store = Store.open(tmp_path, study)
+    done = store.done_mask()
+    assert 0 < done.sum() < len(study.cases), done
+    # a case whose results were written but whose done flag was not (a crash between the two): garbage + not done
+    victim = int(np.flatnonzero(done)[0])
+    store.group["flutter_speed_mps"][victim] = -1.0
+    store.group["done"][victim] = False
+    before = int(store.done_mask().sum())
+    info = run_study(study, tmp_path, scheduler=cluster)
+    assert info["computed"] == len(study.cases) - before
+    ds = info["store"].load()
+    assert bool(ds["done"].all())
+    assert results_of(ds) == serial_results(serial)  # identical, case by case
+    again = run_study(study, tmp_path, scheduler=cluster)  # nothing missing: nothing computed, no client
+    assert again["computed"] == 0 and again["workers"] == 0
+
+
+def test_killed_worker_study_completes_without_duplicates(serial, flutter_spec, cluster, tmp_path):
+    from panel_rig.studies import cases
+    from panel_rig.studies.runner import run_study
+
+    study = load_spec(flutter_spec)
+    killed = {}
+
+    def kill_busy_worker(client, written):
+        if killed:
+            return
+        busy = [w for w, keys in client.processing().items() if keys]
+        if busy:
+            pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+            os.kill(pid, signal.SIGKILL)
+            killed.update(pid=pid, written=written)
+
+    info = run_study(study, tmp_path, scheduler=cluster, flush_s=0.0, on_flush=kill_busy_worker)
+    assert killed and killed["written"] < len(study.cases), "the study ended before a worker could be killed"
+    assert info["computed"] == len(study.cases)  # each case written once
+    ds = info["store"].load()
+    assert bool(ds["done"].all()) and ds.sizes["case"] == len(study.cases)
+    assert results_of(ds) == serial_results(serial)
+    from dask.distributed import Client
+
+    with Client(cluster) as client:
+        client.wait_for_workers(2, timeout=60)  # the nanny restarted the killed one
+        pids = client.run(os.getpid)
+        assert killed["pid"] not in pids.values()
+        assert set(client.run(cases.warmups).values()) == {1}  # warmed once per worker process, not per case
+
+
+def test_external_scheduler_and_workers(serial, flutter_spec, tmp_path):
+    """`dask scheduler` + two `dask worker` processes on 127.0.0.1; the CLI on a terminal shows a progress bar."""
+    sched_file = tmp_path / "scheduler.json"
+    env = dict(os.environ)
+    logs = open(tmp_path / "cluster.log", "w")
+    procs = [subprocess.Popen([str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--dashboard-address", ":0", "--scheduler-file", str(sched_file)],
+                              stdout=logs, stderr=subprocess.STDOUT, env=env)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([str(BIN / "dask"), "worker", "--scheduler-file", str(sched_file),
+                                           "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
+                                           "--dashboard-address", ":0"], stdout=logs, stderr=subprocess.STDOUT,
+                                          env=env))
+        from dask.distributed import Client
+
+        with Client(scheduler_file=str(sched_file), timeout="60s") as client:
+            client.wait_for_workers(2, timeout=90)
+            address = client.scheduler.address
+        out = tmp_path / "ext"
+        master, slave = pty.openpty()
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a 100-column terminal
+        p = subprocess.Popen([*CLI, "study", "--spec", str(flutter_spec), "--scheduler", address, "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=slave, text=True)
+        os.close(slave)
+        chunks: list[bytes] = []
+
+        def drain() -> None:  # read the terminal while the CLI runs (a full pty would block it)
+            while True:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # EIO: the terminal's other side is closed
+                    return
+                if not chunk:
+                    return
+                chunks.append(chunk)
+
+        reader = threading.Thread(target=drain, daemon=True)
+        reader.start()
+        stdout, _ = p.communicate(timeout=150)
+        reader.join(10)
+        os.close(master)
+        tty = b"".join(chunks)
+        assert p.returncode == 0, tty.decode(errors="replace")[-3000:]
+        assert "on 2 workers" in stdout
+        assert b"8/8" in tty and b"%|" in tty, tty  # tqdm's bar on the terminal
+        import xarray as xr
+
+        ds = xr.open_zarr(out / "results.zarr", consolidated=False).load()
+        assert results_of(ds) == serial_results(serial)
+    finally:
+        for p in reversed(procs):
+            p.send_signal(signal.SIGINT)
+        for p in reversed(procs):
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        logs.close()
+
+
+def test_bifurcation_chains_continue_from_the_previous_lco(cluster, base, tmp_path):
+    """Each link starts from the state the previous one ended in: the chain equals `panel-rig lco` at the first
+    airspeed followed by the same stepper continued at the next; an interrupted chain resumes from the store."""
+    from panel_rig.analysis.lco import lco_metrics, run_lco
+    from panel_rig.studies.report import plot, summarize
+    from panel_rig.studies.runner import run_study
+
+    spec = {"kind": "bifurcation", "airspeeds": [11.0, 13.0, 14.0], "variants": ["stiffness"], "direction": "both",
+            "duration_s": 1.0}
+    study = parse_spec(spec, base)
+
+    def interrupt(client, written):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, tmp_path, scheduler=cluster, flush_s=0.0, on_flush=interrupt)
+    info = run_study(study, tmp_path, scheduler=cluster)
+    assert 0 < info["computed"] < len(study.cases)
+    ds = info["store"].load()
+    assert bool(ds["done"].all())
+    cfg = config_from_flat(base)
+    for branch in study.chains[0].cases:
+        speeds = [study.cases[i]["airspeed_mps"] for i in branch]
+        res, _, st = run_lco(cfg, speeds[0], 1.0, "stiffness")
+        expect = [res.rms_tip_w_over_L]
+        for u in speeds[1:]:
+            expect.append(lco_metrics(st.advance(int(round(1.0 / st.dt_s)), u), st.dt_s, u).rms_tip_w_over_L)
+        got = ds["rms_tip_w_over_L"].values[list(branch)]
+        np.testing.assert_allclose(got, expect, rtol=1e-9)
+    summary = summarize(study, ds)
+    assert summary["branches"][0]["variant"] == "stiffness"
+    assert plot(study, ds, summary, tmp_path)[0].stat().st_size > 10_000
+
+
+def test_uncertainty_summary_and_ranking(cluster, base, tmp_path):
+    from panel_rig.studies.report import plot, summarize
+    from panel_rig.studies.runner import case_records, run_study
+
+    spec = {"kind": "uncertainty", "samples": 8, "seed": 3, "batch": 3, "set": {"aero.rom_modes": 12},
+            "vary": {"material.youngs_modulus_pa": {"uniform": [6.0e10, 8.0e10]},
+                     "structure.damping_ratio": {"uniform": [0.0049, 0.0051]}}}
+    study = parse_spec(spec, base)
+    ds = run_study(study, tmp_path, scheduler=cluster)["store"].load()
+    records = case_records(study, ds)
+    u = np.array([r["flutter_speed_mps"] for r in records])
+    assert [r["params"] for r in records] == study.cases and np.all(np.isfinite(u))
+    summary = summarize(study, ds)
+    assert summary["percentiles_mps"]["50"] == pytest.approx(np.median(u))
+    rank = summary["sensitivity"]
+    assert [r["key"] for r in rank][0] == "material.youngs_modulus_pa"  # stiffness moves U_f, damping barely
+    assert rank[0]["value"] > 0.95 and rank[0]["measure"] == "spearman"
+    assert plot(study, ds, summary, tmp_path)[0].stat().st_size > 10_000
