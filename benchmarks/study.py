@@ -1,0 +1,92 @@
+"""Parameter-study speed (issue 12): a 400-case flutter map serial vs on a 2-worker LocalCluster, the scheduler's
+per-task overhead, and the inputs of the 100,000-case estimate in docs/studies.md.
+
+    python benchmarks/study.py [--json] [--spec config/studies/flutter_map.yaml] [--workers 2] [--noop 2000]
+
+serial: the same case function (panel_rig.studies.cases.flutter_case) in a plain loop in this process, no Dask.
+cluster: `run_study` end to end (cluster start, warm-up, compute, Zarr writes), and its compute phase alone.
+per-task overhead: wall time per no-op task on the same cluster (scheduler + comms + worker bookkeeping), and the
+study's own: (wall of the compute phase x workers - sum of case compute times) / cases.
+The machine's load (os.getloadavg) is printed before and after: the ratio means little on a busy machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def serial(study) -> dict[str, float]:
+    from panel_rig.studies.cases import flutter_case, warm_up
+
+    warm_up()
+    t0 = time.perf_counter()
+    times = [flutter_case(study.config_values(c), study.options["aero"], study.options["formulation"])["compute_s"]
+             for c in study.cases]
+    wall = time.perf_counter() - t0
+    return {"serial_wall_s": wall, "serial_case_mean_s": float(np.mean(times))}
+
+
+def cluster(study, workers: int, noop: int) -> dict[str, float]:
+    from dask.distributed import Client, LocalCluster
+
+    from panel_rig.studies.runner import run_study
+
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        info = run_study(study, Path(tmp) / "study", workers=workers)
+        ds = info["store"].load()
+        compute_wall = info["wall_s"] - info["ready_s"]
+        case_sum = float(ds["compute_s"].sum())
+        out.update(cluster_wall_s=info["wall_s"], cluster_ready_s=info["ready_s"], cluster_compute_wall_s=compute_wall,
+                   cluster_write_s=info["write_s"], cluster_case_mean_s=case_sum / len(study.cases),
+                   study_overhead_per_case_s=(compute_wall * workers - case_sum) / len(study.cases),
+                   write_per_case_s=info["write_s"] / len(study.cases))
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR) as lc, Client(lc) as client:
+        client.gather(client.map(lambda i: i, range(50), pure=False))  # connections up
+        t0 = time.perf_counter()
+        client.gather(client.map(lambda i: i, range(noop), pure=False))
+        out["noop_task_overhead_s"] = (time.perf_counter() - t0) / noop
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--spec", default=str(ROOT / "config" / "studies" / "flutter_map.yaml"))
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--noop", type=int, default=2000, help="no-op tasks for the per-task overhead")
+    ap.add_argument("--skip-serial", action="store_true")
+    args = ap.parse_args()
+    from panel_rig.studies.spec import load_spec
+
+    study = load_spec(args.spec)
+    res: dict[str, float] = {"cases": len(study.cases), "workers": args.workers, "cpus": os.cpu_count(),
+                             "load_before": os.getloadavg()[0]}
+    res.update(cluster(study, args.workers, args.noop))
+    if not args.skip_serial:
+        res.update(serial(study))
+        res["speedup_end_to_end"] = res["serial_wall_s"] / res["cluster_wall_s"]
+        res["speedup_compute_phase"] = res["serial_wall_s"] / res["cluster_compute_wall_s"]
+    res["load_after"] = os.getloadavg()[0]
+    if args.json:
+        print(json.dumps(res))
+    else:
+        for k, v in res.items():
+            print(f"{k:32s} {v:12.4f}" if isinstance(v, float) else f"{k:32s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
