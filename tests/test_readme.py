@@ -31,6 +31,8 @@ NOT_RUN_HERE = {
     ("python", "benchmarks/run.py"): "benchmarks take minutes; run by hand (figures in the README and validation)",
     (".venv/bin/rerun",): "opens a viewer (a display or a browser); checked by hand, screenshot in docs/figures",
     ("colcon",): "needs a ROS workspace; tests/test_packaging.py runs `colcon list` on the package",
+    ("panel-rig", "study", "--scheduler"): "needs a running Dask scheduler and workers; tests/test_studies.py "
+                                           "starts them on 127.0.0.1 and runs the same command against them",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work
 SERVICES = {"run": "panel_rig up", "operate": None}
