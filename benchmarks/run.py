@@ -1,10 +1,10 @@
 """Speed benchmarks: prints ratios (simulated seconds per wall second) and wall times.
 
-    python benchmarks/run.py [--json] [--node]
+    python benchmarks/run.py [--json] [--node] [--study]
 
 One core, nonlinear `full` variant, dt = 1/2048 s, near the flutter speed (1.05 U_f).
 --node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py) and its start-up time,
-cold and warm (benchmarks/startup.py).
+cold and warm (benchmarks/startup.py). --study adds the parameter-study benchmark (benchmarks/study.py).
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--node", action="store_true", help="also run the 60 s node real-time benchmark")
+    ap.add_argument("--study", action="store_true", help="also the 400-case Dask flutter map (benchmarks/study.py)")
     args = ap.parse_args()
     cfg = load_config()
     out: dict[str, float] = {}
@@ -82,6 +83,10 @@ def main() -> int:
 
         out.update(node())
         out.update(startup())
+    if args.study:
+        from study import measure as study
+
+        out.update(study())
     if args.json:
         print(json.dumps(out))
     else:

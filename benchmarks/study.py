@@ -30,11 +30,13 @@ def serial(study) -> dict[str, float]:
     from panel_rig.studies.cases import flutter_case, warm_up
 
     warm_up()
-    t0 = time.perf_counter()
+    load = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
     times = [flutter_case(study.config_values(c), study.options["aero"], study.options["formulation"])["compute_s"]
              for c in study.cases]
-    wall = time.perf_counter() - t0
-    return {"serial_wall_s": wall, "serial_case_mean_s": float(np.mean(times))}
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return {"serial_wall_s": wall, "serial_case_mean_s": float(np.mean(times)), "serial_cpu_per_case_s": cpu / len(times),
+            "serial_load_start": load, "serial_load_end": os.getloadavg()[0]}
 
 
 def cluster(study, workers: int, noop: int) -> dict[str, float]:
@@ -42,7 +44,7 @@ def cluster(study, workers: int, noop: int) -> dict[str, float]:
 
     from panel_rig.studies.runner import run_study
 
-    out: dict[str, float] = {}
+    out: dict[str, float] = {"cluster_load_start": os.getloadavg()[0]}
     with tempfile.TemporaryDirectory() as tmp:
         info = run_study(study, Path(tmp) / "study", workers=workers)
         ds = info["store"].load()
@@ -51,14 +53,30 @@ def cluster(study, workers: int, noop: int) -> dict[str, float]:
         out.update(cluster_wall_s=info["wall_s"], cluster_ready_s=info["ready_s"], cluster_compute_wall_s=compute_wall,
                    cluster_write_s=info["write_s"], cluster_case_mean_s=case_sum / len(study.cases),
                    study_overhead_per_case_s=(compute_wall * workers - case_sum) / len(study.cases),
-                   write_per_case_s=info["write_s"] / len(study.cases))
+                   write_per_case_s=info["write_s"] / len(study.cases), cluster_load_end=os.getloadavg()[0])
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR) as lc, Client(lc) as client:
+                      dashboard_address=None, silence_logs=logging.CRITICAL) as lc, Client(lc) as client:
         client.gather(client.map(lambda i: i, range(50), pure=False))  # connections up
         t0 = time.perf_counter()
         client.gather(client.map(lambda i: i, range(noop), pure=False))
         out["noop_task_overhead_s"] = (time.perf_counter() - t0) / noop
     return out
+
+
+def measure(spec: str | Path = ROOT / "config" / "studies" / "flutter_map.yaml", workers: int = 2, noop: int = 2000,
+            with_serial: bool = True) -> dict[str, float]:
+    """Serial first, then the cluster (the load average of each phase is recorded: compare like with like)."""
+    from panel_rig.studies.spec import load_spec
+
+    study = load_spec(spec)
+    res: dict[str, float] = {"study_cases": len(study.cases), "study_workers": workers, "cpus": os.cpu_count()}
+    if with_serial:
+        res.update(serial(study))
+    res.update(cluster(study, workers, noop))
+    if with_serial:
+        res["study_speedup_end_to_end"] = res["serial_wall_s"] / res["cluster_wall_s"]
+        res["study_speedup_compute_phase"] = res["serial_wall_s"] / res["cluster_compute_wall_s"]
+    return res
 
 
 def main() -> int:
@@ -69,17 +87,7 @@ def main() -> int:
     ap.add_argument("--noop", type=int, default=2000, help="no-op tasks for the per-task overhead")
     ap.add_argument("--skip-serial", action="store_true")
     args = ap.parse_args()
-    from panel_rig.studies.spec import load_spec
-
-    study = load_spec(args.spec)
-    res: dict[str, float] = {"cases": len(study.cases), "workers": args.workers, "cpus": os.cpu_count(),
-                             "load_before": os.getloadavg()[0]}
-    res.update(cluster(study, args.workers, args.noop))
-    if not args.skip_serial:
-        res.update(serial(study))
-        res["speedup_end_to_end"] = res["serial_wall_s"] / res["cluster_wall_s"]
-        res["speedup_compute_phase"] = res["serial_wall_s"] / res["cluster_compute_wall_s"]
-    res["load_after"] = os.getloadavg()[0]
+    res = measure(args.spec, args.workers, args.noop, not args.skip_serial)
     if args.json:
         print(json.dumps(res))
     else:

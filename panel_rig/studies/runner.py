@@ -48,7 +48,7 @@ def connect(workers: int | None = None, scheduler: str | None = None, timeout_s:
             client.close()
         return
     cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=None, silence_logs=logging.CRITICAL)
     try:
         with Client(cluster) as client:
             yield client
