@@ -1,7 +1,7 @@
 """Run a study on Dask: a LocalCluster (N worker processes, one thread each) or an existing scheduler.
 
 Only the missing cases of the output store are submitted (resume after Ctrl-C, a crash or a lost worker).
-Results are written to the store as they arrive (flushed at most every ``flush_s`` seconds and on the way out,
+Results are written to the store as they arrive (gathered for at most ``flush_s`` seconds and on the way out,
 Ctrl-C included). Dask re-runs the tasks of a worker that dies; a case has one slot in the store, so a re-run
 cannot duplicate it. Each worker warms the kernels once, in a worker plugin, when it starts.
 """
@@ -115,7 +115,7 @@ def _results(study: Study, value: Any, idx: list[int], state_len: int) -> dict[i
 
 
 def run_study(study: Study, out_dir: str | Path, workers: int | None = None, scheduler: str | None = None,
-              progress: bool = False, flush_s: float = 0.5,
+              progress: bool = False, flush_s: float = 1.0,
               on_flush: Callable[[Client, int], None] | None = None) -> dict[str, Any]:
     """Compute the missing cases of ``study`` into ``out_dir``; returns {store, computed, wall_s, workers, ...}
     (``ready_s``: time until the cluster was up and warm; ``write_s``: time spent writing the store).

@@ -205,7 +205,8 @@ def parse_spec(raw: Mapping[str, Any], base_file: Mapping[str, Any]) -> Study:
         raise _fail("set", f"expected a mapping of dotted keys, got {fixed!r}")
     base = dict(base_file)
     for k, v in fixed.items():
-        base[_config_key("set", k)] = _value("set", k, v)
+        key = _config_key("set", k)
+        base[key] = _value("set", key, v)
     config_from_flat(base)  # the fixed part alone must be a valid configuration
     vary = raw.get("vary") or {}
     if not isinstance(vary, Mapping):

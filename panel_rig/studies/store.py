@@ -75,6 +75,8 @@ class Store:
         self.study = study
         self.group = zarr.open_group(str(path), mode="r+")
         self.vars = result_vars(study.kind) + (("state",) if study.kind == "bifurcation" else ())
+        # the client is the only writer: keep a copy of each array, so that a flush only writes (never reads)
+        self._mirror = {v: np.asarray(self.group[v][:]) for v in self.vars + ("done",)}
 
     @classmethod
     def open(cls, out_dir: str | Path, study: Study, state_len: Callable[[], int] | None = None) -> "Store":
@@ -99,7 +101,7 @@ class Store:
         return cls(path, study)
 
     def done_mask(self) -> np.ndarray:
-        return np.asarray(self.group["done"][:], dtype=bool)
+        return np.asarray(self.group["done"][:], dtype=bool)  # from the files: what a resume would see
 
     def missing(self) -> np.ndarray:
         """Indices of the cases not yet done."""
@@ -115,16 +117,14 @@ class Store:
         self._put("done", idx, [True] * idx.size)
 
     def _put(self, var: str, idx: np.ndarray, values: Iterable[Any]) -> None:
-        arr = self.group[var]
-        vals = list(values)
+        """Set the cases' values in the mirror, then write each touched chunk whole (one atomic file each)."""
+        arr, mirror = self.group[var], self._mirror[var]
+        for i, v in zip(idx, values):
+            mirror[i] = v
         chunk = arr.chunks[0]
         for c in np.unique(idx // chunk):
-            sel = np.flatnonzero(idx // chunk == c)
-            lo, hi = int(idx[sel].min()), int(idx[sel].max()) + 1
-            block = np.array(arr[lo:hi])
-            for s in sel:
-                block[idx[s] - lo] = vals[s]
-            arr[lo:hi] = block
+            lo, hi = int(c) * chunk, min(int(c + 1) * chunk, mirror.shape[0])
+            arr[lo:hi] = mirror[lo:hi]
 
     def load(self) -> xr.Dataset:
         return xr.open_zarr(str(self.path), consolidated=False).load()
