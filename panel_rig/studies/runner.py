@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import dask
 import numpy as np
 from dask.distributed import Client, LocalCluster, WorkerPlugin, as_completed
 
@@ -47,8 +48,11 @@ def connect(workers: int | None = None, scheduler: str | None = None, timeout_s:
         finally:
             client.close()
         return
-    cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.CRITICAL)
+    # the workers' statistical profiler samples the running task's stack every 10 ms under the GIL: measurable on
+    # cases of ~40 ms of many small LAPACK calls, and of no use without a dashboard
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
     try:
         with Client(cluster) as client:
             yield client
