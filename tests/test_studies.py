@@ -26,7 +26,7 @@ import pytest
 import yaml
 
 from panel_rig.config import SCHEMA, ConfigError, config_from_flat, read_params_file
-from panel_rig.model.options import VARIANTS
+from panel_rig.model.options import PAPER_VARIANTS, VARIANTS
 from panel_rig.studies.spec import load_spec, parse_spec
 
 dask_distributed = pytest.importorskip("dask.distributed")
@@ -128,6 +128,17 @@ def test_spec_expands_grids_samples_and_chains(base):
     assert [bif.cases[i]["airspeed_mps"] for i in up] == [9, 10, 11, 12]
     assert [bif.cases[i]["airspeed_mps"] for i in down] == [12, 11, 10, 9]
     assert all(k in SCHEMA for k in s.keys)
+
+
+def test_example_specs_are_valid():
+    """The specs shipped in config/studies/ (README, docs, benchmark) parse and expand."""
+    root = Path(__file__).resolve().parents[1] / "config" / "studies"
+    kinds = {p.stem: load_spec(p) for p in root.glob("*.yaml")}
+    assert len(kinds["flutter_map"].cases) == 400 and len(kinds["uncertainty"].cases) == 200
+    assert {c["variant"] for c in kinds["bifurcation"].cases} == set(PAPER_VARIANTS)
+    with pytest.raises(ConfigError, match=r"\+7.06e\+10"):  # YAML 1.1 reads 7.06e10 as text: say how to write it
+        parse_spec({"kind": "uncertainty", "samples": 2, "vary": {"material.youngs_modulus_pa": {"normal": ["7.06e10", 1]}}},
+                   {})
 
 
 # ---- running ----------------------------------------------------------------------------------

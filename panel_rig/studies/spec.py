@@ -101,7 +101,13 @@ def _config_key(where: str, key: Any) -> str:
 
 def _number(where: str, x: Any, positive: bool = False, integer: bool = False) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-        raise _fail(where, f"expected a number, got {x!r}")
+        hint = ""
+        if isinstance(x, str):
+            try:
+                hint = f" (YAML reads it as text: write {float(x):+.6g}, an exponent needs its sign)" if float(x) else ""
+            except ValueError:
+                pass
+        raise _fail(where, f"expected a number, got {x!r}{hint}")
     if integer and not float(x).is_integer():
         raise _fail(where, f"expected an integer, got {x!r}")
     if positive and x <= 0:
