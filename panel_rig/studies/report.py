@@ -142,8 +142,13 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
                 rms = ds["rms_tip_w_over_L"].values[list(branch)]
                 ax.plot(u, rms, ("^-" if d == "up" else "v--"), color=color, label=f"{ch.variant}, {d}",
                         mfc="none" if d == "down" else color)
+                div = ds["diverged"].values[list(branch)].astype(bool)
+                if div.any():  # no amplitude to draw: mark the airspeed at the top edge
+                    ax.plot(u[div], np.full(div.sum(), 0.97 if d == "up" else 0.93), "x", color=color,
+                            transform=ax.get_xaxis_transform(), clip_on=False)
             point = study.grid[ch.grid_index]
-            ax.set_title(", ".join(f"{k} = {v}" for k, v in point.items()) or "bifurcation diagram")
+            title = ", ".join(f"{k} = {v}" for k, v in point.items()) or "bifurcation diagram"
+            ax.set_title(f"{title}\n(x at the top: diverged, |tip w/L| over the bound)", fontsize=9)
             ax.set_xlabel("airspeed, m/s")
             ax.set_ylabel("RMS tip w/L")
             ax.legend(fontsize=7)
