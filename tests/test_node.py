@@ -592,6 +592,9 @@ def test_real_time_node_parameters_round_trip_and_ros_clock_stamps(
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
+    import tempfile
+
+    temp_files = set(Path(tempfile.gettempdir()).glob("panel_rig_params_*"))
     cmd = [PYTHON, "-c", LAUNCHER, "--params", str(PARAMS), "--ros-args", "-r", "__ns:=/rt",
            "--params-file", str(ROOT / "config" / "rig.yaml")]
     proc = subprocess.Popen(cmd, env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -644,3 +647,5 @@ def test_real_time_node_parameters_round_trip_and_ros_clock_stamps(
         out, _ = proc.communicate(timeout=15)
     assert proc.returncode == 0, out[-2000:]
     assert "stamped with the ROS clock" in out
+    assert f"physics parameters given: {len(SCHEMA)} of {len(SCHEMA)}" in out  # --params applied in /rt
+    assert set(Path(tempfile.gettempdir()).glob("panel_rig_params_*")) == temp_files  # no temporary copies
