@@ -21,13 +21,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, Vector3Stamped
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -46,7 +40,7 @@ from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
-from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params
+from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
 
 NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -68,34 +62,6 @@ def default_stepper_factory(cfg: PanelConfig, variant: str, aero: str) -> Steppe
     except ImportError as exc:
         raise StartupError(f"model stepper unavailable: {exc}") from exc
     return Stepper(cfg, variant=variant, aero=aero)
-
-
-def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
-                ) -> ParameterDescriptor:
-    """A statically typed descriptor (type of the default) with its range and read-only flag."""
-    kind = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-            float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}[type(default)]
-    d = ParameterDescriptor(type=kind, description=description + ("; read-only: restart to change" if read_only else ""),
-                            read_only=read_only)
-    if kind == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
-        d.floating_point_range = [FloatingPointRange(from_value=float(-math.inf if lo is None else lo),
-                                                     to_value=float(math.inf if hi is None else hi), step=0.0)]
-    elif kind == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
-        d.integer_range = [IntegerRange(from_value=int(-(2**63) if lo is None else lo),
-                                        to_value=int(2**63 - 1 if hi is None else hi), step=1)]
-    return d
-
-
-def parameter_table() -> dict[str, tuple[Any, ParameterDescriptor]]:
-    """Every node parameter, physics and node's own: name -> (default, descriptor)."""
-    defaults = PanelConfig()
-    table: dict[str, tuple[Any, ParameterDescriptor]] = {}
-    for key, spec in SCHEMA.items():
-        default = getattr(defaults, spec.field)
-        table[key] = (default, _descriptor(default, f"physics ({spec.rule})", True, spec.lo, spec.hi))
-    for name, p in NODE_PARAMS.items():
-        table[name] = (p.default, _descriptor(p.default, p.description, not p.live, p.lo, p.hi))
-    return table
 
 
 class RigNode(Node):

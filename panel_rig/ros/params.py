@@ -14,7 +14,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from panel_rig.config import interval_rule
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+
+from panel_rig.config import SCHEMA, PanelConfig, interval_rule
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
 from panel_rig.rig.rig import TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
@@ -116,3 +118,31 @@ def check_node_params(values: Mapping[str, Any]) -> list[str]:
         if reason:
             problems.append(f"{name}: {reason}")
     return problems
+
+
+def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
+                ) -> ParameterDescriptor:
+    """A statically typed descriptor (type of the default) with its range and read-only flag."""
+    kind = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+            float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}[type(default)]
+    d = ParameterDescriptor(type=kind, description=description + ("; read-only: restart to change" if read_only else ""),
+                            read_only=read_only)
+    if kind == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
+        d.floating_point_range = [FloatingPointRange(from_value=float(-math.inf if lo is None else lo),
+                                                     to_value=float(math.inf if hi is None else hi), step=0.0)]
+    elif kind == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
+        d.integer_range = [IntegerRange(from_value=int(-(2**63) if lo is None else lo),
+                                        to_value=int(2**63 - 1 if hi is None else hi), step=1)]
+    return d
+
+
+def parameter_table() -> dict[str, tuple[Any, ParameterDescriptor]]:
+    """Every node parameter, physics and node's own: name -> (default, descriptor)."""
+    defaults = PanelConfig()
+    table: dict[str, tuple[Any, ParameterDescriptor]] = {}
+    for key, spec in SCHEMA.items():
+        default = getattr(defaults, spec.field)
+        table[key] = (default, _descriptor(default, f"physics ({spec.rule})", True, spec.lo, spec.hi))
+    for name, p in NODE_PARAMS.items():
+        table[name] = (p.default, _descriptor(p.default, p.description, not p.live, p.lo, p.hi))
+    return table
