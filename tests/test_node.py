@@ -511,19 +511,22 @@ def test_lco_matches_offline_stepper(fast_node: subprocess.Popen, client: Client
 
 
 def _lockin_amplitude(t: np.ndarray, w: np.ndarray, f_hz: float) -> float:
-    """Amplitude of the f_hz component of w(t) (Hann-weighted single-bin DFT on the actual time stamps)."""
-    u = (t - t[0]) / (t[-1] - t[0])
-    hann = 0.5 - 0.5 * np.cos(2 * np.pi * u)
-    return float(2 * abs(np.sum(hann * w * np.exp(-2j * np.pi * f_hz * t))) / np.sum(hann))
+    """Amplitude of the f_hz component of w(t): least-squares fit of a sinusoid (and an offset) on the actual
+    stamps, unbiased by gaps where best-effort samples were lost (a windowed DFT is not)."""
+    phase = 2 * np.pi * f_hz * t
+    basis = np.column_stack([np.cos(phase), np.sin(phase), np.ones_like(t)])
+    (a, b, _), *_ = np.linalg.lstsq(basis, w, rcond=None)
+    return float(np.hypot(a, b))
 
 
 def test_shaker_excites_the_expected_response(fast_node: subprocess.Popen, client: Client) -> None:
     """At U = 0 the built-in sine shaker drives the tip at its frequency with the amplitude that the same force
-    gives the model offline (lock-in amplitude at f over an 8 s window, 3 %)."""
+    gives the model offline (amplitude at f over an 8 s window after 20 s, when the start transient of the
+    lightly damped first mode, time constant 1/(zeta omega_1) = 7.7 s, has decayed; 3 %)."""
     from panel_rig.model.stepper import Stepper
 
     cfg = load_config()
-    f_hz, amp_npm, settle_s, window_s = 10.0, 0.5, 2.0, 8.0
+    f_hz, amp_npm, settle_s, window_s = 10.0, 0.5, 20.0, 8.0
     reset(client)
     client.publish("shaker/frequency_cmd", f_hz)
     client.publish("shaker/amplitude_cmd", amp_npm)
@@ -589,10 +592,10 @@ def test_real_time_node_parameters_round_trip_and_ros_clock_stamps(
     """The documented start (rig.yaml + the physics file through --params): `ros2 param load` of rig.yaml and of a
     `ros2 param dump` succeed; descriptors carry types, ranges and read-only; an integer for a float stays a float;
     real-time readings are stamped with the ROS clock (delay of a few ms)."""
+    import tempfile
+
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
-
-    import tempfile
 
     temp_files = set(Path(tempfile.gettempdir()).glob("panel_rig_params_*"))
     cmd = [PYTHON, "-c", LAUNCHER, "--params", str(PARAMS), "--ros-args", "-r", "__ns:=/rt",
