@@ -29,6 +29,16 @@ from panel_rig.cli import analyze_main as main
 from panel_rig.recording import BagWriter
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def read_ros2_messages(path: str) -> list:
+    """Decoded messages (schema, channel, message, decoded_message) through mcap's make_reader with
+    the mcap-ros2 DecoderFactory (mcap_ros2.reader.read_ros2_messages is deprecated)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
 REFERENCE = ROOT / "bags" / "stiffness_staircase"
 
 # ------------------------------------------------------------------------------ synthetic bag
@@ -297,7 +307,6 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
 
 
 def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
     from rosbags.highlevel import AnyReader
 
@@ -348,7 +357,6 @@ def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object)
 
 
 def test_live_rrd_entities_and_rows(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
 
     counts = Counter(m.channel.topic for m in read_ros2_messages(str(next(node_run["bag"].glob("*.mcap")))))
