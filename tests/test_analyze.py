@@ -376,10 +376,14 @@ def test_analyze_writes_rrd_from_bag(node_run: dict[str, object], tmp_path: Path
 
     res = analyze_bag(node_run["bag"], rerun_path=tmp_path / "replay.rrd")
     temporal: Counter = Counter()
+    policy: dict[str, list] = {}
     for chunk in RrdReader(res["rerun"]).stream().to_chunks():
         if not chunk.is_static:
             temporal[str(chunk.entity_path)] += chunk.num_rows
+        elif "SeriesLines:aggregation_policy" in (batch := chunk.to_record_batch()).schema.names:
+            policy[str(chunk.entity_path)] = batch.column("SeriesLines:aggregation_policy").to_pylist()
     assert temporal["/tip/w_over_L"] == res["samples"] == temporal["/modal/q3"]
+    assert policy["/tip/w_over_L"] == policy["/modal/q3"] == [[5]]  # MinMax: the replay keeps the LCO envelope
     assert temporal["/panel/shape"] > 0 and temporal["/commands/shaker/force_cmd"] == 2
 
 

@@ -22,6 +22,10 @@ AIRSPEED = "airspeed/mps"
 FORCE = "shaker/force_npm"
 SHAPE = "panel/shape"
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+# How a time-series view draws the samples that share a pixel when zoomed out. Rerun's default is the
+# average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
+# its envelope at any zoom.
+AGGREGATION = "MinMax"
 
 
 class VizError(RuntimeError):
@@ -216,6 +220,7 @@ class RerunLogger:
         return str(path)
 
     def _log_styles(self) -> None:
+        """Static `SeriesLines` per series: name, colour, width and min/max zoom aggregation (`AGGREGATION`)."""
         rr, rec = self._rr, self._rec
         styles = {
             TIP: ("w/L", [31, 119, 180]),
@@ -227,7 +232,11 @@ class RerunLogger:
             styles[modal_entity(i)] = (f"q{i}", palette[(i - 1) % len(palette)])
         rec.log("panel", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for entity, (name, color) in styles.items():
-            rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
+            rec.log(
+                entity,
+                rr.SeriesLines(names=name, colors=[color], widths=1.5, aggregation_policy=AGGREGATION),
+                static=True,
+            )
 
 
 def _strip_points(x_m: np.ndarray, z_m: np.ndarray, caller: str) -> np.ndarray:
