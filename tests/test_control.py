@@ -262,3 +262,17 @@ def test_law_with_sensor_noise_keeps_the_panel_quiet_above_open_loop_flutter(cfg
     late = run.time_s > 6.0
     assert np.sqrt(np.mean(true_tip[late] ** 2)) < QUIET_FACTOR * SENSOR_NOISE_M
     assert np.max(np.abs(run.command_npm)) < ControlSettings().max_force_npm
+
+
+def test_cli_flutter_control_json_and_bad_input(capsys, tmp_path) -> None:
+    import json
+
+    from panel_rig.cli import main
+
+    assert main(["flutter", "--control", "--json", "--delay-ms", "3", "--plot", str(tmp_path / "d.png")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["closed_loop_flutter_speed_mps"] > 1.25 * out["flutter_speed_mps"]
+    assert out["loop_delay_s"] == pytest.approx(0.003) and (tmp_path / "d.png").stat().st_size > 10_000
+    assert main(["flutter", "--control", "--delay-ms", "nan"]) == 2
+    assert main(["flutter", "--control", "--delay-ms", "1", "--command-age-ms", "1"]) == 2
+    assert "error" in capsys.readouterr().err
