@@ -286,6 +286,12 @@ def _operator_main(argv: Sequence[str]) -> int:
     return main(argv)
 
 
+def _control_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.controller import main
+
+    return main(argv)
+
+
 def _demo_main(argv: Sequence[str]) -> int:
     from panel_rig.demo import main
 
@@ -298,6 +304,8 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
                         "[--ros-args ...]"),
     "operate": (_operator_main, "play a test procedure over the rig's command topics: --profile FILE "
                                 "[--namespace NS] [--ros-args ...]"),
+    "control": (_control_main, "the reference flutter-suppression controller node: [--params FILE] "
+                               "[--ros-args -r __ns:=/rig -p gain_nspm2:=G ...]"),
     "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
 }
 

@@ -128,8 +128,9 @@ class ControlActuator:
             self.target_npm = 0.0
             self.timeouts += 1
             if not self._trip_logged and self.log is not None:
-                self.log.warning(f"control watchdog: no command for {self.settings.timeout_s:g} s at "
-                                 f"t = {t_start_s:.3f} s; control actuator to zero")
+                self.log.warning(f"control watchdog: last command at t = {self._last_arrival_s:.4f} s, none for "
+                                 f"control.timeout_s = {self.settings.timeout_s:g} s: control actuator to zero at "
+                                 f"t = {t_start_s:.4f} s")
                 self._trip_logged = True
         if self.force_npm == 0.0 and self.target_npm == 0.0:
             return 0.0
