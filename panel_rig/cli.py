@@ -292,6 +292,12 @@ def _control_main(argv: Sequence[str]) -> int:
     return main(argv)
 
 
+def _control_demo_main(argv: Sequence[str]) -> int:
+    from panel_rig.control_demo import main
+
+    return main(argv)
+
+
 def _demo_main(argv: Sequence[str]) -> int:
     from panel_rig.demo import main
 
@@ -306,6 +312,8 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
                                 "[--namespace NS] [--ros-args ...]"),
     "control": (_control_main, "the reference flutter-suppression controller node: [--params FILE] "
                                "[--ros-args -r __ns:=/rig -p gain_nspm2:=G ...]"),
+    "control-demo": (_control_demo_main, "flutter suppression over topics: node + controller, quiet at 1.2 U_f, "
+                                         "predicted vs emulated closed-loop onset, bag + Rerun"),
     "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
 }
 
