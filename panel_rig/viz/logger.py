@@ -210,7 +210,7 @@ class RerunLogger:
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         """Accepted commands become scalars under `commands/<name>`."""
-        if self._rec is None or not accepted:
+        if self._rec is None or not accepted or name == "control/force_cmd":  # 500 Hz: batched by log_control
             return
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
