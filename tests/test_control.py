@@ -276,3 +276,23 @@ def test_cli_flutter_control_json_and_bad_input(capsys, tmp_path) -> None:
     assert main(["flutter", "--control", "--delay-ms", "nan"]) == 2
     assert main(["flutter", "--control", "--delay-ms", "1", "--command-age-ms", "1"]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_rerun_logs_control_command_and_age_in_batches(tmp_path) -> None:
+    pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    from panel_rig.viz import RerunLogger
+
+    path = tmp_path / "c.rrd"
+    logger = RerunLogger(3, mode="save", target=str(path))
+    for k in range(300):
+        logger.log_control(k / 500.0, 0.1 * math.sin(k / 10), 2.0 + (k % 7) * 0.1)
+        logger.on_command("control/force_cmd", 0.1, True, k / 500.0)  # not logged one by one
+    logger.close()
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        if not chunk.is_static:
+            rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    assert rows.get("/control/command_npm") == 300 and rows.get("/control/latency_ms") == 300
+    assert "/commands/control/force_cmd" not in rows
