@@ -215,3 +215,34 @@ def test_controller_bad_parameters_exit_code_2(env: dict[str, str]) -> None:
                           timeout=60, check=False)
     assert proc.returncode == 2 and "nonexistent" in proc.stderr
 
+
+
+def test_real_time_ages_on_the_ros_clock_and_watchdog(env: dict[str, str]) -> None:
+    """Real time: commands echo ROS-clock stamps, the node measures their ages on the ROS clock (reported, not
+    asserted against a target: the machine's load decides them; benchmarks/control_latency.py measures them), and
+    killing the controller trips the watchdog. The tunnel is off: this checks the plumbing, not the suppression."""
+    client = Client(int(env["ROS_DOMAIN_ID"]))
+    node = subprocess.Popen(
+        [PYTHON, "-m", "panel_rig.ros.node", "--ros-args", "-r", "__ns:=/rig", "-p", "diagnostics_rate_hz:=5.0",
+         "-p", f"control.timeout_s:={TIMEOUT_S}"], env=env, cwd=ROOT, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
+    ctl = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
+                            "-p", "gain_nspm2:=0.4"], env=env, cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True)
+    node_out = ""
+    try:
+        client.wait(lambda: client.diag().get("mode") == "real-time" and client.diag().get("control_state") == "active"
+                    and int(client.diag()["control_latency_n"]) > 0, 60.0, "real-time control commands")
+        d = client.diag()
+        assert client.got["cmd"] and stamp_s(client.got["cmd"][-1]) > 1e9  # the ROS clock, not simulated time
+        assert 0 < float(d["control_latency_mean_ms"]) < 1e3 * TIMEOUT_S, d
+        assert d["control_lockstep"] == "False"
+        ctl.kill()
+        ctl.wait(10)
+        client.wait(lambda: any("control watchdog" in m.msg for m in client.got["rosout"]), 10.0, "the watchdog")
+        client.wait(lambda: client.diag()["control_state"] == "timed_out", 5.0, "control state timed out")
+    finally:
+        _stop(ctl)
+        node_out = _stop(node)
+        client.close()
+    assert node.returncode == 0, node_out[-3000:]
