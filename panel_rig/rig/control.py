@@ -70,7 +70,7 @@ class ControlActuator:
             raise ValueError(f"dt_s must be > 0, got {dt_s!r}")
         self.dt_s = float(dt_s)
         self.log = logger
-        self.ages_s: deque[float] = deque(maxlen=age_window)  # since start (bounded)
+        self.ages_s: deque[float] = deque(maxlen=age_window)  # the last age_window commands
         self.window_ages_s: list[float] = []  # since the last :meth:`take_window`
         self.commands = 0
         self.timeouts = 0

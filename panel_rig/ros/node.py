@@ -382,7 +382,8 @@ class RigNode(Node):
             executor.spin_once(timeout_sec=0.002)
 
     def _control_diagnostics(self) -> dict[str, Any]:
-        """Control actuator state and command ages (mean, p99, max over this diagnostics period and since start)."""
+        """Control actuator state and command ages (mean, p99, max over this diagnostics period; mean, p99 over the
+        last 100 000 commands)."""
         c = self.rig.control
         window = c.latency_stats_ms(c.take_window())
         total = c.latency_stats_ms()
