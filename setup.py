@@ -35,6 +35,7 @@ setup(
             "panel-rig = panel_rig.cli:main",
             "rig_node = panel_rig.ros.node:main",
             "rig_operator = panel_rig.ros.operator:main",
+            "rig_controller = panel_rig.ros.controller:main",
         ],
     },
 )

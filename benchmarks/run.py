@@ -3,8 +3,9 @@
     python benchmarks/run.py [--json] [--node]
 
 One core, nonlinear `full` variant, dt = 1/2048 s, near the flutter speed (1.05 U_f).
---node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py) and its start-up time,
-cold and warm (benchmarks/startup.py).
+--node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py), its start-up time,
+cold and warm (benchmarks/startup.py), and the closed-loop latency with the 500 Hz controller attached
+(benchmarks/control_latency.py).
 """
 
 from __future__ import annotations
@@ -77,11 +78,13 @@ def main() -> int:
     except Exception as exc:  # noqa: BLE001 - the recorder extra may be absent
         print(f"recorder benchmark skipped: {exc}", file=sys.stderr)
     if args.node:
+        from control_latency import measure as control_latency
         from node_realtime import measure as node
         from startup import measure as startup
 
         out.update(node())
         out.update(startup())
+        out.update(control_latency())
     if args.json:
         print(json.dumps(out))
     else:

@@ -63,6 +63,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     rom_modes = args.rom_modes if args.rom_modes is not None else cfg.rom_modes
     if rom_modes < 1:
         raise UsageError("--rom-modes must be >= 1")
+    if args.control:
+        return _flutter_control(args, cfg, model, rom_modes)
     kw = dict(aero=args.aero, rom_modes=rom_modes if args.aero == "rom" else None,
               formulation=args.formulation)
     fp = find_flutter(model, **kw)
@@ -92,6 +94,77 @@ def cmd_flutter(args: argparse.Namespace) -> int:
         return (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
                 f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
                 f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+
+    _emit(args, payload, table)
+    return 0
+
+
+def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom_modes: int) -> int:
+    """``flutter --control``: open- and closed-loop flutter speed of the linear ROM model (continuous time) with
+    the reference law, the control actuator's bandwidth and the loop delay (given, or from a measured command
+    age); optional damping plot."""
+    from panel_rig.analysis.control import (
+        DESIGN_DELAY_S,
+        LoopModel,
+        closed_loop_flutter,
+        damping_curves,
+        design_law,
+        effective_delay,
+        noise_force_rms,
+    )
+    from panel_rig.rig.control import ControlSettings
+
+    if args.delay_ms is not None and args.command_age_ms is not None:
+        raise UsageError("give --delay-ms or --command-age-ms, not both")
+    for name in ("delay_ms", "command_age_ms"):
+        v = getattr(args, name)
+        if v is not None and not (np.isfinite(v) and 0 <= v <= 100):
+            raise UsageError(f"--{name.replace('_', '-')} must be in [0, 100] ms, got {v}")
+    bw = args.actuator_bandwidth_hz if args.actuator_bandwidth_hz is not None else ControlSettings().bandwidth_hz
+    if not (np.isfinite(bw) and 0 < bw <= 1e4):
+        raise UsageError(f"--actuator-bandwidth-hz must be in (0, 1e4], got {bw}")
+    if args.command_age_ms is not None:
+        delay_s, source = effective_delay(args.command_age_ms * 1e-3, args.rate_hz, cfg.dt_s), "command age"
+    elif args.delay_ms is not None:
+        delay_s, source = args.delay_ms * 1e-3, "given"
+    else:
+        delay_s, source = DESIGN_DELAY_S, "design"
+    design = design_law(model, bw, rom_modes=rom_modes)
+    loop = LoopModel(bw, delay_s)
+    u_max = 2.5 * design.open_loop_flutter_mps
+    cl = closed_loop_flutter(model, design.law, loop, rom_modes, u_max=u_max, n_scan=40)
+    payload: dict[str, Any] = {
+        "flutter_speed_mps": design.open_loop_flutter_mps,
+        "flutter_frequency_hz": design.notes["open_loop_flutter_frequency_hz"],
+        "closed_loop_flutter_speed_mps": cl.speed_mps,
+        "closed_loop_flutter_frequency_hz": cl.frequency_hz,
+        "closed_loop_unstable_at_low_speed": cl.unstable_at_low_speed,
+        "ratio": None if cl.speed_mps is None else cl.speed_mps / design.open_loop_flutter_mps,
+        "loop_delay_s": delay_s, "loop_delay_source": source, "actuator_bandwidth_hz": bw,
+        "law": design.law.as_dict(), "design_delay_s": design.loop.delay_s,
+        "robust_delay_s": design.notes["robust_delay_s"], "sensor_noise_m": design.sensor_noise_m,
+        "noise_force_rms_npm": noise_force_rms(design.law, args.rate_hz), "controller_rate_hz": args.rate_hz,
+        "aero": "rom", "rom_modes": rom_modes, "formulation": "continuous",
+    }
+    if args.plot:
+        from panel_rig.analysis.plots import plot_control_damping
+
+        speeds = np.linspace(1.0, min(u_max, 1.6 * (cl.speed_mps or u_max)), 45)
+        payload["plot"] = str(plot_control_damping(
+            speeds, damping_curves(model, speeds, None, loop, rom_modes),
+            damping_curves(model, speeds, design.law, loop, rom_modes), args.plot, design.open_loop_flutter_mps,
+            cl.speed_mps, f"rate feedback g = {design.law.gain_nspm2:g} N s/m^2, derivative filter "
+                          f"{design.law.derivative_hz:g} Hz, actuator {bw:g} Hz, loop delay {delay_s * 1e3:.2f} ms"))
+
+    def table() -> str:
+        speed = "stable up to {:.1f} m/s".format(u_max) if cl.speed_mps is None else f"{cl.speed_mps:8.3f} m/s"
+        return (f"open-loop flutter speed    {design.open_loop_flutter_mps:8.3f} m/s (ROM, continuous)\n"
+                f"closed-loop flutter speed  {speed}"
+                + ("" if cl.speed_mps is None else f" (x{cl.speed_mps / design.open_loop_flutter_mps:.3f}, "
+                                                   f"{cl.frequency_hz:.2f} Hz)") + "\n"
+                f"law                        F = -{design.law.gain_nspm2:g} s/(1 + s/(2 pi "
+                f"{design.law.derivative_hz:g})) w   [N/m per m/s]\n"
+                f"loop                       actuator {bw:g} Hz, delay {delay_s * 1e3:.3f} ms ({source})")
 
     _emit(args, payload, table)
     return 0
@@ -213,6 +286,18 @@ def _operator_main(argv: Sequence[str]) -> int:
     return main(argv)
 
 
+def _control_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.controller import main
+
+    return main(argv)
+
+
+def _control_demo_main(argv: Sequence[str]) -> int:
+    from panel_rig.control_demo import main
+
+    return main(argv)
+
+
 def _demo_main(argv: Sequence[str]) -> int:
     from panel_rig.demo import main
 
@@ -225,6 +310,10 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
                         "[--ros-args ...]"),
     "operate": (_operator_main, "play a test procedure over the rig's command topics: --profile FILE "
                                 "[--namespace NS] [--ros-args ...]"),
+    "control": (_control_main, "the reference flutter-suppression controller node: [--params FILE] "
+                               "[--ros-args -r __ns:=/rig -p gain_nspm2:=G ...]"),
+    "control-demo": (_control_demo_main, "flutter suppression over topics: node + controller, quiet at 1.2 U_f, "
+                                         "predicted vs emulated closed-loop onset, bag + Rerun"),
     "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
 }
 
@@ -374,7 +463,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rom-modes", type=int, metavar="N", help="Ra, aerodynamic eigenmodes (default: aero.rom_modes)")
     p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",
                    help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
-    p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus)")
+    p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus); with "
+                   "--control: open- vs closed-loop damping")
+    p.add_argument("--control", action="store_true",
+                   help="closed loop with the reference controller, the control actuator and the loop delay")
+    p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
+    p.add_argument("--command-age-ms", type=float,
+                   help="--control: a measured mean command age, ms (adds half a controller period and a physics step)")
+    p.add_argument("--rate-hz", type=float, default=500.0, help="--control: controller rate, Hz (default 500)")
+    p.add_argument("--actuator-bandwidth-hz", type=float, help="--control: default control.bandwidth_hz")
     p.set_defaults(func=cmd_flutter)
 
     def model_opts(p: argparse.ArgumentParser, aero: bool = True) -> None:

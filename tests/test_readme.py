@@ -31,9 +31,10 @@ NOT_RUN_HERE = {
     ("python", "benchmarks/run.py"): "benchmarks take minutes; run by hand (figures in the README and validation)",
     (".venv/bin/rerun",): "opens a viewer (a display or a browser); checked by hand, screenshot in docs/figures",
     ("colcon",): "needs a ROS workspace; tests/test_packaging.py runs `colcon list` on the package",
+    ("panel-rig", "control-demo"): "takes ~1.5 min; tests/test_control_node.py runs the same loop (node + controller)",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work
-SERVICES = {"run": "panel_rig up", "operate": None}
+SERVICES = {"run": "panel_rig up", "operate": None, "control": "controller up"}
 TIMEOUT_S = 240.0
 
 

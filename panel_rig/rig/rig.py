@@ -12,6 +12,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from panel_rig.rig.actuator import AirspeedActuator
+from panel_rig.rig.control import ControlActuator, ControlSettings, check_control_force, check_stamp
 from panel_rig.rig.reading import Reading, ReadingBlock, Sink
 from panel_rig.rig.safety import (
     SafetyLimits,
@@ -98,9 +99,11 @@ class Rig:
         sinks: Iterable[Sink] = (),
         divergence_errors: tuple[type[BaseException], ...] | None = None,
         logger: EventLogger | None = None,
+        control: ControlSettings | None = None,
     ) -> None:
         """``logger``: where rig events (aborts, limits acting) go; anything with ``info``/``warning``/``error``
-        taking one string (the ROS node's logger, or by default this module's Python logger)."""
+        taking one string (the ROS node's logger, or by default this module's Python logger). ``control``: the
+        control actuator's settings (its force adds to the shaker's at the trailing edge)."""
         self.log: EventLogger = logger if logger is not None else log
         self.stepper = stepper
         self.dt_s = float(stepper.dt_s)
@@ -109,6 +112,7 @@ class Rig:
         tunnel = tunnel or TunnelSettings()
         self.actuator = AirspeedActuator(self.dt_s, tunnel.time_constant_s, tunnel.max_rate_mps2)
         self.shaker = Shaker(self.dt_s)
+        self.control = ControlActuator(self.dt_s, control, logger=self.log)  # closed-loop control (issue 13)
         self.sinks: list[Sink] = list(sinks)
         self._divergence = divergence_errors or _divergence_types()
         self.state = RUNNING
@@ -132,8 +136,9 @@ class Rig:
     def step(self) -> None:
         """One physics step with the actuator's airspeed and the shaker's force for that step."""
         airspeed = self.actuator.airspeed_mps
-        force = self.shaker.step()
-        self._last_force_npm = force
+        shaker = self.shaker.step()
+        self._last_force_npm = shaker
+        force = shaker + self.control.step(self._time_s)
         try:
             self.stepper.step(airspeed, force)
             tip = float(self.stepper.tip_w_over_L)
@@ -203,24 +208,26 @@ class Rig:
             self.step()
         return self.reading()
 
-    def _inputs(self, n: int) -> tuple[list[float], list[float], list[float]]:
-        """Per-step airspeed (at the start of each step), shaker force and airspeed after it; advances
-        the actuator and the shaker by n steps (exactly as :meth:`step` does)."""
-        act, shaker = self.actuator, self.shaker
-        u_in, force, u_out = [0.0] * n, [0.0] * n, [0.0] * n
+    def _inputs(self, n: int) -> tuple[list[float], list[float], list[float], list[float]]:
+        """Per-step airspeed (at the start of each step), total force (shaker + control), airspeed after it and
+        the shaker's own force; advances the actuator, the shaker and the control actuator by n steps (exactly
+        as :meth:`step` does)."""
+        act, shaker, control = self.actuator, self.shaker, self.control
+        u_in, force, u_out, shaken = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
         for k in range(n):
             u_in[k] = act.airspeed_mps
-            force[k] = shaker.step()
+            shaken[k] = shaker.step()
+            force[k] = shaken[k] + control.step((self.steps + k) * self.dt_s)
             u_out[k] = act.step()
-        return u_in, force, u_out
+        return u_in, force, u_out, shaken
 
     def _march_block(self, counts: list[int]) -> tuple[ReadingBlock, int]:
         """March sum(counts) steps (every count >= 1) in one call; stops before an event (tip over the limit,
         divergence, model error). Returns the completed samples and the steps taken into the next one."""
         ends = np.cumsum(counts)
         n = int(ends[-1])
-        u0, phase0 = self.actuator.airspeed_mps, self.shaker.phase_rad
-        u_in, force, u_out = self._inputs(n)
+        u0, phase0, control0 = self.actuator.airspeed_mps, self.shaker.phase_rad, self.control.snapshot()
+        u_in, force, u_out, shaken = self._inputs(n)
         bound = self.limits.max_tip_w_over_L if self.state == RUNNING else math.inf
         try:
             run = self.stepper.advance_sampled(np.array(u_in), np.array(force), ends, bound)  # type: ignore[attr-defined]
@@ -229,9 +236,10 @@ class Rig:
             run, done, samples = None, 0, 0
         if done < n:  # rewind the actuator and the shaker to the event
             self.actuator.airspeed_mps, self.shaker.phase_rad = u0, phase0
+            self.control.restore(control0)
             self._inputs(done)
         if done:
-            self._last_force_npm = force[done - 1]
+            self._last_force_npm = shaken[done - 1]
         start = self.steps
         self.steps += done
         self._time_s = self.steps * self.dt_s
@@ -241,7 +249,7 @@ class Rig:
             nm = len(np.atleast_1d(self.stepper.q))
             return ReadingBlock(empty, empty, empty, empty, empty, *(np.zeros((0, nm)),) * 3, state=self.state), done
         tip = run.tip_w_over_L[idx]
-        block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(force)[idx],
+        block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(shaken)[idx],
                              tip * self.panel_length_m, tip, run.q, run.qdot_per_s, run.aero_force_npm, self.state)
         consumed = done - (int(ends[samples - 1]) if samples else 0)
         return block, consumed
@@ -299,10 +307,30 @@ class Rig:
             apply,
         )
 
+    # ---- closed-loop control (issue 13; logic in panel_rig.rig.control) ------------------------------------
+    def command_control(self, force_npm: float, stamp_s: float, arrival_s: float | None = None) -> CommandResult:
+        """Control force (N/m) answering the reading of simulated time ``stamp_s``, received at simulated time
+        ``arrival_s`` (default: now). Acts from the first step starting at or after its arrival; its age is
+        recorded. Rejected if not finite, beyond the saturation, or older than the watchdog timeout."""
+        arrival = self._time_s if arrival_s is None else float(arrival_s)
+
+        def check() -> str | None:
+            return check_control_force(force_npm, self.control.settings) or check_stamp(
+                stamp_s, arrival, self.control.settings)
+
+        return self._command("control/force_cmd", force_npm, check,
+                             lambda: self.control.command(float(force_npm), float(stamp_s), arrival))
+
+    def set_control(self, **changes: float) -> None:
+        """Change the control actuator's settings live (validated; raises ValueError)."""
+        self.control.configure(replace(self.control.settings, **changes))
+
+    # ---- emergency stop and reset ----------------------------------------------------------------------------
     def abort(self, reason: str = "operator abort") -> None:
-        """Emergency stop: set-point 0 (the actuator ramps down), shaker off, state aborted."""
+        """Emergency stop: set-point 0 (the actuator ramps down), shaker and control actuator off, state aborted."""
         self.actuator.setpoint_mps = 0.0
         self.shaker.reset()
+        self.control.reset()
         if self.state != ABORTED:
             self.abort_count += 1
             self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
@@ -314,6 +342,7 @@ class Rig:
         self.stepper.reset()
         self.actuator.reset()
         self.shaker.reset()
+        self.control.reset()
         self._last_force_npm = 0.0
         self.state = RUNNING
         self.abort_reason = ""

@@ -2,7 +2,7 @@
 
 Names form one nested namespace in which no name is also the prefix of another (so ``ros2 param dump``
 writes one nested YAML that ``ros2 param load`` takes back). Defaults of the rig's settings come from the
-rig's own dataclasses (:class:`SafetyLimits`, :class:`TunnelSettings`); ``config/rig.yaml`` is pinned to
+rig's own dataclasses (:class:`SafetyLimits`, :class:`TunnelSettings`, :class:`ControlSettings`); ``config/rig.yaml`` is pinned to
 these defaults by a test.
 """
 
@@ -18,6 +18,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 from panel_rig.config import SCHEMA, PanelConfig, interval_rule
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
+from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 
@@ -66,7 +67,7 @@ def _rerun(v: Any) -> str | None:
     return None if isinstance(v, str) and _RERUN.match(v) else f"expected none | save:PATH | connect:URL, got {v!r}"
 
 
-_LIMITS, _TUNNEL = SafetyLimits(), TunnelSettings()
+_LIMITS, _TUNNEL, _CONTROL = SafetyLimits(), TunnelSettings(), ControlSettings()
 
 NODE_PARAMS: dict[str, NodeParam] = {
     "physics_dt": _number(0.0, False, "physics step, s (0: use sim.dt_s)", 0.0, 0.01),
@@ -92,6 +93,19 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                         lo_open=True),
     "shaker.max_frequency_hz": _number(_LIMITS.max_frequency_hz, True, "sine frequency limit, Hz", 0.0, 1e5,
                                        lo_open=True),
+    # closed-loop control actuator (control/force_cmd; panel_rig/rig/control.py)
+    "control.bandwidth_hz": _number(_CONTROL.bandwidth_hz, True, "control actuator first-order bandwidth, Hz",
+                                    0.0, 1e4, lo_open=True),
+    "control.max_force_npm": _number(_CONTROL.max_force_npm, True,
+                                     "control force saturation +-, N/m (commands beyond it are rejected)",
+                                     0.0, 1e6, lo_open=True),
+    "control.max_rate_npmps": _number(_CONTROL.max_rate_npmps, True, "control force rate limit, N/m per s",
+                                      0.0, 1e9, lo_open=True),
+    "control.timeout_s": _number(_CONTROL.timeout_s, True,
+                                 "watchdog: no control command for longer -> control force to zero, s",
+                                 0.0, 60.0, lo_open=True),
+    "control.fast_delay_s": _number(0.002, True, "fast mode (lock-step with the controller): emulated command "
+                                    "latency added to each command's arrival, s", 0.0, 1.0),
     "record": NodeParam(False, False, _bool, "record a rosbag2 MCAP of every topic and command"),
     "bag_dir": NodeParam("bags", False, _string, "directory for recordings"),
     "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
@@ -105,6 +119,10 @@ LIMIT_FIELDS = {
     "shaker.max_amplitude_npm": "max_amplitude_npm",
     "shaker.max_frequency_hz": "max_frequency_hz",
 }
+
+
+#: node parameter -> field of :class:`panel_rig.rig.control.ControlSettings`
+CONTROL_FIELDS = {f"control.{name}": name for name in ("bandwidth_hz", "max_force_npm", "max_rate_npmps", "timeout_s")}
 
 
 def check_node_params(values: Mapping[str, Any]) -> list[str]:
