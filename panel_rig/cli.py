@@ -188,6 +188,24 @@ def cmd_forced(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_gust(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.gust import GUST_WAKE_CHORDS, sears_comparison
+
+    cfg = _config(args)
+    ks = args.k
+    if not ks or any(not (np.isfinite(k) and 0 < k <= 10) for k in ks):
+        raise UsageError(f"--k needs reduced frequencies in (0, 10], got {ks}")
+    wake = GUST_WAKE_CHORDS if args.wake_chords is None else args.wake_chords
+    if not (np.isfinite(wake) and 1 <= wake <= 500):
+        raise UsageError(f"--wake-chords must be in [1, 500], got {wake}")
+    points = sears_comparison(cfg, ks, wake)
+    payload = {"points": points, "elements": cfg.n_elements, "wake_chords": wake}
+    _emit(args, payload, lambda: "     k   |L|/(2 pi rho U b w0)   phase (deg)   Sears |S|   Sears phase (deg)\n" + "\n".join(
+        f"{p['k']:6.3f}  {p['lift_magnitude']:21.4f}  {p['lift_phase_deg']:12.2f}  {p['sears_magnitude']:10.4f}"
+        f"  {p['sears_phase_deg']:18.2f}" for p in points))
+    return 0
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -291,6 +309,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m")
     p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency")
     p.set_defaults(func=cmd_forced)
+
+    p = sub.add_parser("gust", help="lift of the rigid lattice in a convected sinusoidal gust vs the Sears function")
+    _common(p)
+    p.add_argument("--k", type=float, nargs="+", required=True, metavar="K",
+                   help="reduced frequencies omega b / U, b = half of airfoil + panel chord")
+    p.add_argument("--wake-chords", type=float, metavar="W",
+                   help="wake length in chords for this check (default 60, as the Theodorsen check)")
+    p.set_defaults(func=cmd_gust)
 
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)
