@@ -44,6 +44,16 @@ class PanelConfig:
     load_point: str = "quarter"
     dt_s: float = 1.0 / 2048.0
     max_tip_w_over_L: float = 2.0
+    # the tunnel and the sensor around the model (panel_rig/rig/turbulence.py, sensor.py); the dataclass defaults
+    # are a quiet tunnel and a perfect sensor, config/tang_dowell_2002.yaml sets the documented rig defaults
+    turbulence_intensity: float = 0.0
+    turbulence_length_scale_m: float = 0.1
+    turbulence_spectrum: str = "dryden"
+    turbulence_seed: int = 0
+    sensor_tip_noise_m: float = 0.0
+    sensor_resolution_m: float = 0.0
+    sensor_bandwidth_hz: float = 0.0
+    sensor_latency_s: float = 0.0
 
     @property
     def mass_per_area_kgpm2(self) -> float:
@@ -103,6 +113,7 @@ class _Spec:
 
 
 LOAD_POINTS = ("quarter", "three_quarter", "center")
+TURBULENCE_SPECTRA = ("dryden", "von_karman", "off")  # = panel_rig.rig.turbulence.SPECTRA (config is the top layer)
 
 SCHEMA: dict[str, _Spec] = {
     "panel.length_m": _Spec("panel_length_m", float, _positive, "must be > 0"),
@@ -121,6 +132,18 @@ SCHEMA: dict[str, _Spec] = {
     "aero.load_point": _Spec("load_point", str, lambda v: v in LOAD_POINTS, f"must be one of {LOAD_POINTS}"),
     "sim.dt_s": _Spec("dt_s", float, lambda v: 0 < v <= 0.01, "must lie in (0, 0.01]"),
     "sim.max_tip_w_over_L": _Spec("max_tip_w_over_L", float, _positive, "must be > 0"),
+    "tunnel.turbulence.intensity": _Spec("turbulence_intensity", float, lambda v: 0 <= v <= 0.2,
+                                         "must lie in [0, 0.2] (sigma / U)"),
+    "tunnel.turbulence.length_scale_m": _Spec("turbulence_length_scale_m", float, lambda v: 1e-3 <= v <= 100,
+                                              "must lie in [0.001, 100] m"),
+    "tunnel.turbulence.spectrum": _Spec("turbulence_spectrum", str, lambda v: v in TURBULENCE_SPECTRA,
+                                        f"must be one of {TURBULENCE_SPECTRA}"),
+    "tunnel.turbulence.seed": _Spec("turbulence_seed", int, lambda v: 0 <= v < 2**63, "must lie in [0, 2^63)"),
+    "sensor.tip_noise_m": _Spec("sensor_tip_noise_m", float, lambda v: 0 <= v <= 0.1, "must lie in [0, 0.1] m"),
+    "sensor.resolution_m": _Spec("sensor_resolution_m", float, lambda v: 0 <= v <= 0.1, "must lie in [0, 0.1] m"),
+    "sensor.bandwidth_hz": _Spec("sensor_bandwidth_hz", float, lambda v: v >= 0,
+                                 "must be >= 0 (0: unlimited)"),
+    "sensor.latency_s": _Spec("sensor_latency_s", float, lambda v: 0 <= v <= 1.0, "must lie in [0, 1] s"),
 }
 
 
