@@ -125,9 +125,29 @@ def cmd_lco(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if not (0 < args.duration <= 3600):
         raise UsageError(f"--duration must be in (0, 3600] s, got {args.duration}")
-    res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
-                          keep=bool(args.plot), progress=Progress("lco"))
-    payload = res.as_dict()
+    if args.turbulence_intensity is not None or args.seed is not None:
+        # the tunnel: the panel starts at rest and only the turbulence disturbs it (the same Rig as the node)
+        from panel_rig.analysis.lco import diverged_result, lco_metrics
+        from panel_rig.rig.runs import run_tunnel
+
+        changes: dict[str, Any] = {}
+        if args.turbulence_intensity is not None:
+            changes["turbulence_intensity"] = args.turbulence_intensity
+        if args.seed is not None:
+            changes["turbulence_seed"] = args.seed
+        cfg = cfg.replace(**changes)
+        run = run_tunnel(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                         progress=Progress("lco"))
+        tip = run.tip_w_over_L
+        res = (diverged_result(args.airspeed, run.aborted_at_s) if run.aborted_at_s is not None
+               else lco_metrics(tip, run.dt_s, args.airspeed))
+        payload = res.as_dict()
+        payload.update(turbulence_intensity=cfg.turbulence_intensity, turbulence_spectrum=cfg.turbulence_spectrum,
+                       seed=cfg.turbulence_seed)
+    else:  # the paper's computation: a quiet tunnel, a small initial 2nd-mode deflection starts the flutter
+        res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                              keep=bool(args.plot), progress=Progress("lco"))
+        payload = res.as_dict()
     if args.plot:
         from panel_rig.analysis.plots import plot_series
 
@@ -292,6 +312,11 @@ def build_parser() -> argparse.ArgumentParser:
     model_opts(p)
     p.add_argument("--airspeed", type=float, required=True, metavar="U", help="m/s")
     p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds")
+    p.add_argument("--turbulence-intensity", type=float, metavar="X",
+                   help="run in the tunnel from rest with this turbulence intensity sigma/U (sets "
+                        "tunnel.turbulence.intensity; 0 = quiet tunnel from rest); without it and --seed: the paper's "
+                        "quiet run from a small initial deflection")
+    p.add_argument("--seed", type=int, metavar="N", help="turbulence seed (sets tunnel.turbulence.seed)")
     p.set_defaults(func=cmd_lco)
 
     p = sub.add_parser("lco-sweep", help="LCO amplitude and frequency versus airspeed (Fig. 8)")

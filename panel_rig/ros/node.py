@@ -37,7 +37,7 @@ from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
 from panel_rig.rig.reading import Reading, ReadingBlock
-from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
+from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params, coerce
@@ -87,7 +87,9 @@ class RigNode(Node):
             stepper.reset()
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
-        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel)
+        # the tunnel's turbulence and the tip sensor (physics config tunnel.turbulence.*, sensor.*)
+        extras = tunnel_extras(self.cfg, stepper) if hasattr(stepper, "x_colloc_m") else {}
+        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel, **extras)
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
         self._shape_period_s = 1.0 / p["shape_rate_hz"]
@@ -102,15 +104,16 @@ class RigNode(Node):
 
         # readings out (sensor-data QoS), commands in (reliable)
         sensor = qos_profile_sensor_data
-        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)
+        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)  # through the sensor model
+        self.pub_truth = self.create_publisher(PointStamped, "tip_displacement/truth", sensor)  # the model's tip
         self.pub_modal = self.create_publisher(JointState, "modal_states", sensor)
         self.pub_airspeed = self.create_publisher(Vector3Stamped, "airspeed", sensor)
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
-        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m)
+        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
-                                                                        self.pub_shape, self.pub_diag)}
+                                                                        self.pub_shape, self.pub_diag, self.pub_truth)}
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -359,7 +362,8 @@ class RigNode(Node):
             return
         self.rig.emit_block(block)
         msgs, recording = self._msgs, bool(self._recorders)
-        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed))
+        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
+                (self.pub_truth, msgs.truth))
         for stamp_ns, *encoded in msgs.encode(block):
             for (pub, msg), data in zip(pubs, encoded):
                 if recording:
