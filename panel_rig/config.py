@@ -44,16 +44,16 @@ class PanelConfig:
     load_point: str = "quarter"
     dt_s: float = 1.0 / 2048.0
     max_tip_w_over_L: float = 2.0
-    # the tunnel and the sensor around the model (panel_rig/rig/turbulence.py, sensor.py); the dataclass defaults
-    # are a quiet tunnel and a perfect sensor, config/tang_dowell_2002.yaml sets the documented rig defaults
-    turbulence_intensity: float = 0.0
+    # the tunnel and the tip sensor around the model (used by panel_rig/rig/: turbulence.py, sensor.py; the model
+    # itself never reads them); same values as config/tang_dowell_2002.yaml, where their sources are given
+    turbulence_intensity: float = 0.001
     turbulence_length_scale_m: float = 0.1
-    turbulence_spectrum: str = "dryden"
+    turbulence_spectrum: str = "von_karman"
     turbulence_seed: int = 0
-    sensor_tip_noise_m: float = 0.0
-    sensor_resolution_m: float = 0.0
-    sensor_bandwidth_hz: float = 0.0
-    sensor_latency_s: float = 0.0
+    sensor_tip_noise_m: float = 5.0e-6
+    sensor_resolution_m: float = 3.0e-6
+    sensor_bandwidth_hz: float = 1000.0
+    sensor_latency_s: float = 0.0005
 
     @property
     def mass_per_area_kgpm2(self) -> float:

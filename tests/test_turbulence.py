@@ -85,3 +85,18 @@ def test_off_and_zero_intensity_are_silent():
         assert not tb.on
         u, w = tb.block(np.full(100, U))
         assert not np.any(u) and not np.any(w)
+
+
+def test_config_keys_one_home():
+    """tunnel.turbulence.* and sensor.* live in the physics SCHEMA: the dataclass defaults are the YAML's, --set
+    works offline, bad values name their key."""
+    from panel_rig.config import ConfigError, PanelConfig, load_config
+
+    assert PanelConfig() == load_config()
+    c = load_config(overrides=["tunnel.turbulence.intensity=0.004", "tunnel.turbulence.spectrum=dryden",
+                               "tunnel.turbulence.seed=9", "sensor.latency_s=0.002"])
+    s = TurbulenceSettings.from_config(c)
+    assert (s.intensity, s.spectrum, s.seed, c.sensor_latency_s) == (0.004, "dryden", 9, 0.002)
+    for bad in ("tunnel.turbulence.spectrum=kolmogorov", "tunnel.turbulence.intensity=-0.1", "sensor.tip_noise_m=x"):
+        with pytest.raises(ConfigError, match=bad.split("=")[0]):
+            load_config(overrides=[bad])
