@@ -57,8 +57,10 @@ def test_defaults_flutter_by_themselves_and_the_lco_is_the_quiet_one(flutter):
 
 def test_below_flutter_a_small_random_response_peaked_at_the_modes(flutter):
     """Below U_f the turbulence excites a small response (tip RMS << 1 % of L) that grows toward U_f, and its
-    spectrum peaks at an aeroelastic mode: within the mode's half-power band f_d +- |Re s| / 2 pi (linear eigenvalues
-    at that airspeed; the aero-damped first mode's band is wide at low speed)."""
+    spectrum peaks at the lightly damped aeroelastic modes below 40 Hz (linear eigenvalues at that airspeed, damping
+    ratio < 10 %): the PSD within the mode's half-power band f_d +- |Re s| / 2 pi is at least 3x the PSD on its shoulders
+    (4-6 half-widths, at least 1 Hz, away). (The aero-damped first mode and the quasi-static response to
+    long gusts fill the low frequencies without a sharp peak.)"""
     model, fp = flutter
     rms = []
     for frac in (0.6, 0.8, 0.95):
@@ -68,11 +70,19 @@ def test_below_flutter_a_small_random_response_peaked_at_the_modes(flutter):
         truth = b.tip_w_over_L[b.time_s > 5]
         rms.append(np.std(truth))
         f, P = welch(truth, fs=RATE, nperseg=8 * RATE)
+        df = f[1] - f[0]
         s = eigenvalues(model, U, aero="rom", rom_modes=CFG.rom_modes, formulation="continuous").s
-        osc = (s.imag > 0) & (s.real > -40)  # the structural (lightly damped) roots, not the aero lags
-        modes_hz, half_hz = s.imag[osc] / (2 * np.pi), np.abs(s.real[osc]) / (2 * np.pi)
-        peak = f[1:][np.argmax(P[1:])]
-        assert np.any(np.abs(modes_hz - peak) <= half_hz + (f[1] - f[0])), (U, peak, modes_hz, half_hz)
+        light = (s.imag > 0) & (np.abs(s.real) < 0.1 * np.abs(s))
+        checked = 0
+        for fd, hw in zip(s.imag[light] / (2 * np.pi), np.abs(s.real[light]) / (2 * np.pi)):
+            if fd > 40:  # the 3rd mode (~70 Hz) is barely excited: its response is far below the sensor's noise
+                continue
+            peak = np.max(P[np.abs(f - fd) <= hw + df])
+            d = np.abs(f - fd)
+            shoulder = np.mean(P[(d >= max(4 * hw, 1.0)) & (d <= max(6 * hw, 1.5))])
+            assert peak > 3 * shoulder, (U, fd, hw, peak / shoulder)
+            checked += 1
+        assert checked >= 1
     assert 0 < rms[0] < rms[1] < rms[2] < 0.01, rms
 
 

@@ -128,7 +128,7 @@ class Stepper:
             cfg.panel_length_m * self._tip_vec,  # generalised force per N/m at the trailing edge
             self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
             m.Qg, m.Qgd, m.Gg)  # gust input
-        self._no_gust = np.zeros((0, 0))
+        self._gust_proj = kernel.gust_projection(self.kernel_model)  # (r + 2n, km): what the kernel needs of w_g
         self.reset()
 
     # ---- state ------------------------------------------------------------------------------------
@@ -139,6 +139,7 @@ class Stepper:
         self.qdot = np.zeros(n) if qdot is None else np.array(qdot, dtype=float)
         self.xi = np.zeros(self.mats.Qxi.shape[1])
         self.wg = np.zeros(self.n_colloc)  # vertical gust at the collocation points now, m/s (part of the state)
+        self._pg = np.zeros(self._gust_proj.shape[0])  # its projection [Gg; Qg; Qgd] w_g (the kernel's view)
         self.time_s = 0.0
         self.steps = 0
         # U, q, v, xi, w_g before the last step, and w_g after it
@@ -159,7 +160,7 @@ class Stepper:
         return self.model.lattice.x_colloc_m
 
     def _gust(self, gust_upwash_mps: np.ndarray | None, n_steps: int) -> np.ndarray:
-        """The kernel's per-step gust array: (n_steps, km), or (n_steps, 0) for no gust at all."""
+        """The per-step gust upwash: (n_steps, km), or (n_steps, 0) for no gust at all."""
         if gust_upwash_mps is None:
             if not np.any(self.wg):
                 return np.zeros((n_steps, 0))
@@ -169,8 +170,18 @@ class Stepper:
             raise ValueError(f"gust upwash must have shape ({n_steps}, {self.n_colloc}), got {g.shape}")
         return g
 
-    def _wg_state(self, gust: np.ndarray) -> np.ndarray:
-        return self.wg if gust.shape[1] else np.zeros(0)
+    def _projected(self, gust: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(kernel gust state, per-step projected gust) for a (n_steps, km or 0) upwash array."""
+        if not gust.shape[1]:
+            return np.zeros(0), np.zeros((gust.shape[0], 0))
+        out = np.empty((gust.shape[0], self._gust_proj.shape[0]))
+        kernel.project_gust(gust, self._gust_proj, out)
+        return self._pg, out
+
+    def _gust_done(self, gust: np.ndarray, done: int) -> None:
+        """After ``done`` steps of a march with this gust array: the upwash state follows."""
+        if gust.shape[1] and done:
+            self.wg = gust[done - 1].copy()
 
     @property
     def tip_w_over_L(self) -> float:
@@ -221,7 +232,9 @@ class Stepper:
         return tip
 
     def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray, G: np.ndarray) -> None:
-        status, done = kernel.march(self.q, self.qdot, self.xi, U, F, self.kernel_model, tip, self._wg_state(G), G)
+        pg, P = self._projected(G)
+        status, done = kernel.march(self.q, self.qdot, self.xi, U, F, self.kernel_model, tip, pg, P)
+        self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
         if status != kernel.OK:
@@ -254,9 +267,11 @@ class Stepper:
         m = self.mats
         G = self._gust(gust_upwash_mps, U.shape[0])
         wg_start = self.wg.copy()
+        pg, P = self._projected(G)
         status, done, segs = kernel.march_sampled(
             self.q, self.qdot, self.xi, U, F, ends, self.kernel_model._replace(tip_bound=bound), tip,
-            q_pre, v_pre, xi_pre, q_post, v_post, xi_post, self._wg_state(G), G)
+            q_pre, v_pre, xi_pre, q_post, v_post, xi_post, pg, P)
+        self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
         # gust before / after the last step of each sample
@@ -292,7 +307,7 @@ class BatchStepper:
         self.q = np.zeros((n_runs, n))
         self.qdot = np.zeros((n_runs, n))
         self.xi = np.zeros((n_runs, r))
-        self.wg = np.zeros((n_runs, 0))  # no gust in sweeps (the kernel's k = 0 path)
+        self.pg = np.zeros((n_runs, 0))  # no gust in sweeps (the kernel's width-0 path)
         self.active = np.ones(n_runs, dtype=np.bool_)
         self.status = np.zeros(n_runs, dtype=np.int64)
         self.time_s = 0.0
@@ -312,6 +327,6 @@ class BatchStepper:
             raise ValueError("airspeed must be finite and >= 0, tip force finite")
         tip = np.full((B, n_steps), np.nan)
         kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, self.t.kernel_model, tip, self.status,
-                           self.wg, np.zeros((B, n_steps, 0)))
+                           self.pg, np.zeros((B, n_steps, 0)))
         self.time_s += n_steps * self.t.dt_s
         return tip
