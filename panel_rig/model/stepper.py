@@ -129,6 +129,8 @@ class Stepper:
             self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
             m.Qg, m.Qgd, m.Gg)  # gust input
         self._gust_proj = kernel.gust_projection(self.kernel_model)  # (r + 2n, km): what the kernel needs of w_g
+        kernel.project_gust(np.zeros((1, self._gust_proj.shape[1])), self._gust_proj,
+                            np.zeros((1, self._gust_proj.shape[0])))  # compile / load now
         self.reset()
 
     # ---- state ------------------------------------------------------------------------------------

@@ -222,7 +222,17 @@ class Turbulence:
         n_hist = int(math.ceil(chord_m / (MIN_CONVECTION_SPEED_MPS * self.dt_s))) + 4
         self._hist_u = np.zeros(n_hist)
         self._hist_w = np.zeros(n_hist)
+        self._warm()
         self.reset()
+
+    def _warm(self) -> None:
+        """Compile (or load from numba's cache) the recursions now, not inside the rig's first tick."""
+        one, k = np.ones(1), max(self.scales_m.shape[0], 1)
+        z = np.zeros(k)
+        _generate(one, self.dt_s, np.ones(k), z, np.zeros((1, k, 3)), z.copy(), z.copy(), z.copy(), np.zeros(1),
+                  np.zeros(1))
+        _convect(one, self.dt_s, self.x_colloc_m, self.x_u_m, np.zeros(4), np.zeros(4), 0, np.zeros(1), np.zeros(1),
+                 np.zeros(1), np.zeros((1, self.x_colloc_m.shape[0])), MIN_CONVECTION_SPEED_MPS)
 
     def reset(self) -> None:
         """Back to the seed's start: the same series again."""

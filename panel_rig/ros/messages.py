@@ -138,7 +138,7 @@ class ReadingMessages:
         (:attr:`tip`, ...) keep their type and layout for recorders."""
         ns_all = [max(0, round(t * 1e9)) for t in block.time_s.tolist()]
         tip_z, airspeed = _finite(block.tip_w_m), _finite(block.airspeed_mps)
-        truth_z = _finite(block.tip_w_over_L) * self.panel_length_m
+        truth_z = _finite(np.asarray(block.tip_w_over_L, dtype=float) * self.panel_length_m)
         q, qdot, effort = _finite(block.q), _finite(block.qdot_per_s), _finite(block.aero_force_npm)
         if self.templated:
             t_tip, t_modal, t_air = self._tpl
