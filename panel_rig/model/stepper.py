@@ -276,10 +276,14 @@ class Stepper:
         self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
-        # gust before / after the last step of each sample
+        # gust before / after the last step of each sample (only if there is any)
+        gusty = bool(G.shape[1]) or bool(np.any(wg_start))
         if G.shape[1]:
-            G_full = np.vstack([wg_start[None, :], G])
-            wg_pre, wg_post = G_full[ends[:segs] - 1], G_full[ends[:segs]]
+            last_steps = ends[:segs] - 1
+            wg_post = G[last_steps]
+            wg_pre = G[np.maximum(last_steps - 1, 0)]
+            if segs and last_steps[0] == 0:
+                wg_pre[0] = wg_start
         else:
             wg_pre = wg_post = np.broadcast_to(wg_start, (segs, wg_start.shape[0]))
         if segs:
@@ -292,7 +296,7 @@ class Stepper:
         vm, qm = 0.5 * (v_post[:segs] + v_pre[:segs]), 0.5 * (q_post[:segs] + q_pre[:segs])
         xim = 0.5 * (xi_post[:segs] + xi_pre[:segs])
         aero = -acc @ m.Ma.T - Us * (vm @ m.Ca.T) - Us * Us * (qm @ m.Ka.T) + Us * (xim @ m.Qxi.T)
-        if np.any(wg_pre) or np.any(wg_post):
+        if gusty:
             aero = aero + 0.5 * Us * ((wg_pre + wg_post) @ m.Qg.T) + (wg_post - wg_pre) @ m.Qgd.T / self.dt_s
         return SampledRun(status == kernel.OK, int(done), int(segs), tip[:done], q_post[:segs], v_post[:segs], aero)
 

@@ -1,7 +1,7 @@
 """The tip displacement sensor between the model's truth and the published reading.
 
 A laboratory laser triangulation sensor looking at the trailing edge: the true tip w passes a first-order low-pass
-of bandwidth f_c (``sensor.bandwidth_hz``, exact discrete-time: a = exp(-2 pi f_c dt)), then a pure delay
+of bandwidth f_c (``sensor.bandwidth_hz``, exact discrete-time for a tip held over each step: a = exp(-2 pi f_c dt)), then a pure delay
 (``sensor.latency_s``, linear interpolation between physics steps); each reading then gets white noise of standard
 deviation ``sensor.tip_noise_m`` and is rounded to the resolution ``sensor.resolution_m``. 0 switches a stage off.
 The noise is seeded (from ``tunnel.turbulence.seed``), so a run is reproducible.
@@ -13,6 +13,22 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _filter_delay(x, a, y0, buf, d_int, d_frac, out):
+    """First-order low-pass y_k = a y_{k-1} + (1 - a) x_k, then the delay: out_k = y at d steps ago (linear
+    interpolation); buf holds the last len(buf) filtered values, newest last (updated). Returns the last y."""
+    nb = buf.shape[0]
+    y = y0
+    for k in range(x.shape[0]):
+        y = a * y + (1.0 - a) * x[k]
+        for j in range(nb - 1):
+            buf[j] = buf[j + 1]
+        buf[nb - 1] = y
+        out[k] = (1.0 - d_frac) * buf[nb - 1 - d_int] + d_frac * buf[nb - 2 - d_int]
+    return y
 
 
 @dataclass(frozen=True)
@@ -45,6 +61,8 @@ class TipSensor:
         self._delay_steps = settings.latency_s / self.dt_s
         self._n_buf = int(math.floor(self._delay_steps)) + 2
         self.reset()
+        self.push(np.zeros(1))  # compile / load the filter now
+        self.reset()
 
     def reset(self) -> None:
         self.rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.settings.seed, 0x5E9])))
@@ -53,24 +71,11 @@ class TipSensor:
 
     def push(self, tip_m: np.ndarray) -> np.ndarray:
         """Advance over the true tip of consecutive steps; returns the filtered, delayed tip after each step."""
-        x = np.asarray(tip_m, dtype=float).ravel()
-        n = x.shape[0]
-        if n == 0:
-            return np.zeros(0)
-        if self._a > 0:  # y_k = a y_{k-1} + (1 - a) x_k (exact for x held over the step)
-            from scipy.signal import lfilter
-
-            y, zf = lfilter([1.0 - self._a], [1.0, -self._a], x, zi=[self._a * self._y])
-            self._y = float(y[-1])
-        else:
-            y = x
-        hist = np.concatenate([self._buf, y])
-        self._buf = hist[-self._n_buf:].copy()
-        d = self._delay_steps
-        n0 = int(math.floor(d))
-        f = d - n0
-        idx = np.arange(n) + self._n_buf  # position of step i in hist
-        return (1.0 - f) * hist[idx - n0] + f * hist[idx - n0 - 1]
+        x = np.ascontiguousarray(tip_m, dtype=float).ravel()
+        out = np.empty(x.shape[0])
+        d_int = int(math.floor(self._delay_steps))
+        self._y = _filter_delay(x, self._a, self._y, self._buf, d_int, self._delay_steps - d_int, out)
+        return out
 
     def measure(self, delayed_m: np.ndarray) -> np.ndarray:
         """Readings from the filtered, delayed tip at the sample steps: + noise, rounded to the resolution."""
