@@ -131,3 +131,34 @@ def test_sears_reference_limits():
     """The reference itself: S(0) = 1 and |S(k)| -> 1 / sqrt(2 pi k) for large k."""
     assert abs(sears(1e-6)) == pytest.approx(1.0, abs=1e-4)
     assert abs(sears(200.0)) * np.sqrt(2 * np.pi * 200.0) == pytest.approx(1.0, abs=0.01)
+
+
+@pytest.mark.parametrize("f_hz", [5.0, 15.0, 40.0])
+def test_stepper_gust_response_matches_the_continuous_model(f_hz):
+    """Linear variant, 8 m/s, a convected sinusoidal gust (1 cm/s): the time-stepped tip response (steady state,
+    last 3 s of 8 s) against the frequency response of the continuous-time model with the gust columns
+    (Q += U Qg w + Qgd dw/dt, d xi/dt += Gg dw/dt): amplitude within 1 %, phase within 1 deg. Away from the
+    lightly damped 2nd mode (~23 Hz): there the trapezoidal rule's small frequency shift, not the gust input,
+    moves the resonant amplitude by a few per cent (a trailing-edge force shows the same 2.5 % at 23 Hz with
+    dt = 1/2048 s, 0.04 % with dt / 4)."""
+    U, w0 = 8.0, 0.01
+    st = Stepper(CFG, variant="linear")
+    model, ca = st.model, st.model.continuous(CFG.rom_modes)
+    n, r = st.n_modes, ca.n_aero
+    omega = 2 * np.pi * f_hz
+    Mc, Ac = model.continuous_matrices(U, CFG.rom_modes)
+    phase_x = np.exp(-1j * omega * st.x_colloc_m / U)  # w(x, t) = w0 Re[exp(i omega (t - x/U))]
+    B = np.zeros(2 * n + r, dtype=complex)
+    B[n:2 * n] = (U * ca.Qg + 1j * omega * ca.Qgd) @ phase_x
+    B[2 * n:] = 1j * omega * ca.Gg @ phase_x
+    y = np.linalg.solve(1j * omega * Mc - Ac, B * w0)
+    tip_hat = st._tip_vec @ y[:n]  # complex amplitude of tip w/L
+    t = np.arange(1, int(8.0 / st.dt_s) + 1) * st.dt_s
+    gust = w0 * np.sin(omega * (t[:, None] - st.x_colloc_m[None, :] / U))
+    tip = st.advance(t.size, U, gust_upwash_mps=gust)
+    late = t >= 5.0
+    basis = np.exp(1j * omega * t[late])
+    fit = 2 * np.mean(tip[late] * np.conj(basis))  # complex amplitude of the sin/cos response
+    expected = -1j * tip_hat  # sin(omega t) = Re[-i exp(i omega t)]
+    assert abs(abs(fit) / abs(expected) - 1) < 0.01, (abs(fit), abs(expected))
+    assert abs(np.degrees(np.angle(fit / expected))) < 1.0
