@@ -198,9 +198,29 @@ def cmd_lco(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if not (0 < args.duration <= 3600):
         raise UsageError(f"--duration must be in (0, 3600] s, got {args.duration}")
-    res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
-                          keep=bool(args.plot), progress=Progress("lco"))
-    payload = res.as_dict()
+    if args.turbulence_intensity is not None or args.seed is not None:
+        # the tunnel: the panel starts at rest and only the turbulence disturbs it (the same Rig as the node)
+        from panel_rig.analysis.lco import diverged_result, lco_metrics
+        from panel_rig.rig.runs import run_tunnel
+
+        changes: dict[str, Any] = {}
+        if args.turbulence_intensity is not None:
+            changes["turbulence_intensity"] = args.turbulence_intensity
+        if args.seed is not None:
+            changes["turbulence_seed"] = args.seed
+        cfg = cfg.replace(**changes)
+        run = run_tunnel(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                         progress=Progress("lco"))
+        tip = run.tip_w_over_L
+        res = (diverged_result(args.airspeed, run.aborted_at_s) if run.aborted_at_s is not None
+               else lco_metrics(tip, run.dt_s, args.airspeed))
+        payload = res.as_dict()
+        payload.update(turbulence_intensity=cfg.turbulence_intensity, turbulence_spectrum=cfg.turbulence_spectrum,
+                       seed=cfg.turbulence_seed)
+    else:  # the paper's computation: a quiet tunnel, a small initial 2nd-mode deflection starts the flutter
+        res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                              keep=bool(args.plot), progress=Progress("lco"))
+        payload = res.as_dict()
     if args.plot:
         from panel_rig.analysis.plots import plot_series
 
@@ -258,6 +278,24 @@ def cmd_forced(args: argparse.Namespace) -> int:
                                           "frequency, Hz", "tip w/L amplitude", "forced response (F0)"))
     _emit(args, payload, lambda: f"peak at {r.peak_frequency_hz:.2f} Hz\n" + "\n".join(
         f"{fr:6.2f} Hz  {a:.5f}" for fr, a in zip(r.frequency_hz, r.amplitude_tip_w_over_L)))
+    return 0
+
+
+def cmd_gust(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.gust import GUST_WAKE_CHORDS, sears_comparison
+
+    cfg = _config(args)
+    ks = args.k
+    if not ks or any(not (np.isfinite(k) and 0 < k <= 10) for k in ks):
+        raise UsageError(f"--k needs reduced frequencies in (0, 10], got {ks}")
+    wake = GUST_WAKE_CHORDS if args.wake_chords is None else args.wake_chords
+    if not (np.isfinite(wake) and 1 <= wake <= 500):
+        raise UsageError(f"--wake-chords must be in [1, 500], got {wake}")
+    points = sears_comparison(cfg, ks, wake)
+    payload = {"points": points, "elements": cfg.n_elements, "wake_chords": wake}
+    _emit(args, payload, lambda: "     k   |L|/(2 pi rho U b w0)   phase (deg)   Sears |S|   Sears phase (deg)\n" + "\n".join(
+        f"{p['k']:6.3f}  {p['lift_magnitude']:21.4f}  {p['lift_phase_deg']:12.2f}  {p['sears_magnitude']:10.4f}"
+        f"  {p['sears_phase_deg']:18.2f}" for p in points))
     return 0
 
 
@@ -488,6 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
     model_opts(p)
     p.add_argument("--airspeed", type=float, required=True, metavar="U", help="m/s")
     p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds")
+    p.add_argument("--turbulence-intensity", type=float, metavar="X",
+                   help="run in the tunnel from rest with this turbulence intensity sigma/U (sets "
+                        "tunnel.turbulence.intensity; 0 = quiet tunnel from rest); without it and --seed: the paper's "
+                        "quiet run from a small initial deflection")
+    p.add_argument("--seed", type=int, metavar="N", help="turbulence seed (sets tunnel.turbulence.seed)")
     p.set_defaults(func=cmd_lco)
 
     p = sub.add_parser("lco-sweep", help="LCO amplitude and frequency versus airspeed (Fig. 8)")
@@ -505,6 +548,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m")
     p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency")
     p.set_defaults(func=cmd_forced)
+
+    p = sub.add_parser("gust", help="lift of the rigid lattice in a convected sinusoidal gust vs the Sears function")
+    _common(p)
+    p.add_argument("--k", type=float, nargs="+", required=True, metavar="K",
+                   help="reduced frequencies omega b / U, b = half of airfoil + panel chord")
+    p.add_argument("--wake-chords", type=float, metavar="W",
+                   help="wake length in chords for this check (default 60, as the Theodorsen check)")
+    p.set_defaults(func=cmd_gust)
 
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)

@@ -338,6 +338,24 @@ def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]
     print(f"message counts (mcap-ros2 = rosbags = rerun): {dict(ours)}")
 
 
+def test_node_bag_records_the_sensor_reading_and_the_truth(node_run: dict[str, object]) -> None:
+    """tip_displacement (through the sensor model) and tip_displacement/truth (the model's tip) are both recorded,
+    with the same stamps; the reading follows the truth (latency + bandwidth lag < half a 2 ms sample) and differs
+    from it (noise, resolution, lag)."""
+    from mcap_ros2.reader import read_ros2_messages
+
+    mcap = next(node_run["bag"].glob("*.mcap"))
+    series: dict[str, list[tuple[int, float]]] = {"/rig/tip_displacement": [], "/rig/tip_displacement/truth": []}
+    for m in read_ros2_messages(str(mcap), topics=list(series)):
+        stamp = m.ros_msg.header.stamp
+        series[m.channel.topic].append((stamp.sec * 1_000_000_000 + stamp.nanosec, m.ros_msg.point.z))
+    meas, truth = (np.array(series[t]) for t in series)
+    assert len(meas) == len(truth) > 1000
+    assert np.array_equal(meas[:, 0], truth[:, 0])
+    assert np.corrcoef(meas[:, 1], truth[:, 1])[0, 1] > 0.99
+    assert not np.array_equal(meas[:, 1], truth[:, 1])
+
+
 def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object) -> None:
     """The plateau's metrics window (last 5 s of the free response, as `lco`) against `panel-rig lco`."""
     from panel_rig.analysis.lco import run_lco

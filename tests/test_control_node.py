@@ -232,7 +232,8 @@ def test_real_time_ages_on_the_ros_clock_and_watchdog(env: dict[str, str]) -> No
     node_out = ""
     try:
         client.wait(lambda: client.diag().get("mode") == "real-time" and client.diag().get("control_state") == "active"
-                    and int(client.diag()["control_latency_n"]) > 0, 60.0, "real-time control commands")
+                    and int(client.diag()["control_latency_n"]) > 0 and bool(client.got["cmd"]), 60.0,
+                    "real-time control commands")
         d = client.diag()
         assert client.got["cmd"] and stamp_s(client.got["cmd"][-1]) > 1e9  # the ROS clock, not simulated time
         assert 0 < float(d["control_latency_mean_ms"]) < 1e3 * TIMEOUT_S, d

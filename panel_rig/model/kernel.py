@@ -37,7 +37,8 @@ class KernelModel(NamedTuple):
     (scaled by U and U^2 per step), ``Qxi``, ``Gv``, ``Gs`` and the block-diagonal aero eigenvalues
     (``blk_off``, ``blk_len``, ``lam_a``, ``lam_b``, scaled by U/dx per step). ``f_vec``: generalised force per
     N/m at the trailing edge; ``tip_vec``: tip w/L per modal coordinate; ``tip_bound``: |tip w/L| that stops a
-    march; ``tol``: Newton tolerance; ``dt`` the step (s) and ``dx`` the vortex spacing (m).
+    march; ``tol``: Newton tolerance; ``dt`` the step (s) and ``dx`` the vortex spacing (m). Gust input
+    (appended): ``Qg``, ``Qgd``, ``Gg``.
     """
 
     dt: float
@@ -65,6 +66,11 @@ class KernelModel(NamedTuple):
     tip_vec: np.ndarray
     tip_bound: float
     tol: float
+    # gust input (see ContinuousAero in aeroelastic.py): a vertical gust w_g at the km collocation points adds
+    # to the downwash; Q += U Qg w_g + Qgd dw_g/dt and d xi/dt += Gg dw_g/dt, at the step midpoint like the rest
+    Qg: np.ndarray  # (n, km)
+    Qgd: np.ndarray  # (n, km)
+    Gg: np.ndarray  # (r, km)
 
 
 @njit(cache=True)
@@ -154,9 +160,14 @@ def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
 
 
 @njit(cache=True)
-def march(q, v, xi, U_seq, F_seq, km, tip_out):
+def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     """Advance (q, v, xi) in place over len(U_seq) steps of the :class:`KernelModel` ``km``; tip w/L of each
     step into tip_out.
+
+    Gust: the vertical gust w_g at the km collocation points enters only through its projections
+    p = [Gg w_g, Qg w_g, Qgd w_g] (r + 2n numbers, see :func:`gust_projection`): ``pg`` (r + 2n,) is p now (state,
+    updated in place) and ``Pg_seq`` (n_steps, r + 2n) p at the end of each step. Width 0 (empty arrays) is no gust,
+    and then not a single operation differs from the gust-free kernel.
 
     Returns (status, steps_done): status OK, NON_FINITE or OVER_BOUND (state left at the last good step).
     """
@@ -185,6 +196,8 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
     la = np.zeros(lam_a.shape[0])
     lb = np.zeros(lam_a.shape[0])
     U_prev = -1.0
+    ng = Pg_seq.shape[1]
+    fg = np.zeros(n)
     for step in range(U_seq.shape[0]):
         U = U_seq[step]
         if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
@@ -214,12 +227,20 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
             for j in range(n):
                 acc += (Gv[k, j] - U * h * Gs[k, j]) * v[j]
             tmp_r[k] = acc
+        if ng > 0:  # gust: xi input Gg (w_g' - w_g), force U Qg (w_g + w_g')/2 + Qgd (w_g' - w_g)/dt (projected)
+            for k in range(r):
+                tmp_r[k] += Pg_seq[step, k] - pg[k]
+            for i in range(n):
+                fg[i] = (0.5 * U * (pg[r + i] + Pg_seq[step, r + i])
+                         + (Pg_seq[step, r + n + i] - pg[r + n + i]) / dt)
         _block_apply(blk_off, blk_len, la, lb, tmp_r, c0, True, h)
         for i in range(n):
             acc = 0.0
             for k in range(r):
                 acc += Qxi[i, k] * (xi[k] + c0[k])
             xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
+            if ng > 0:
+                xi_part[i] += fg[i]
         for i in range(n):
             x[i] = v[i]
         for it in range(MAX_ITER):
@@ -271,27 +292,49 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
             v[j] = x[j]
         for k in range(r):
             xi[k] = tmp_r[k]
+        for j in range(ng):
+            pg[j] = Pg_seq[step, j]
         tip_out[step] = tip
     return OK, U_seq.shape[0]
 
 
+def gust_projection(km: KernelModel) -> np.ndarray:
+    """(r + 2n, km) matrix [Gg; Qg; Qgd]: the gust upwash at the collocation points as the kernel sees it."""
+    return np.ascontiguousarray(np.vstack([km.Gg, km.Qg, km.Qgd]))
+
+
+@njit(cache=True, fastmath=True)
+def project_gust(G, P, out):
+    """out[s] = P @ G[s] for each step s, row by row (the same arithmetic whatever the number of rows, so a block
+    march and step-by-step marches see bit-identical inputs)."""
+    for s in range(G.shape[0]):
+        for i in range(P.shape[0]):
+            acc = 0.0
+            for j in range(P.shape[1]):
+                acc += P[i, j] * G[s, j]
+            out[s, i] = acc
+
+
 @njit(cache=True)
-def march_batch(q, v, xi, U_runs, F_runs, active, km, tip_out, status_out):
-    """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps). Runs with
-    active[b] False are skipped; a run that leaves the physical range gets its status and is deactivated."""
+def march_batch(q, v, xi, U_runs, F_runs, active, km, tip_out, status_out, pg, Pg_runs):
+    """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps), projected gust pg (B, k) and
+    Pg_runs (B, n_steps, k) (k = 0: none; see :func:`march`). Runs with active[b] False are skipped; a run that leaves the physical
+    range gets its status and is deactivated."""
     for b in range(q.shape[0]):
         if not active[b]:
             continue
-        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], km, tip_out[b])
+        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], km, tip_out[b], pg[b], Pg_runs[b])
         status_out[b] = st
         if st != OK:
             active[b] = False
 
 
 @njit(cache=True)
-def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
+def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post,
+                  pg, Pg_seq):
     """:func:`march` over segments ending at the increasing step counts ``ends`` (each >= 1 step), keeping
-    the state before and after the last step of each segment (for the aero force at a sample).
+    the state before and after the last step of each segment (for the aero force at a sample). Gust ``pg``,
+    ``Pg_seq`` as in :func:`march`.
 
     Returns (status, steps_done, segments_done); on failure the state is at the last good step.
     """
@@ -299,13 +342,15 @@ def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pr
     for s in range(ends.shape[0]):
         end = ends[s]
         if end - 1 > start:
-            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1])
+            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1],
+                             pg, Pg_seq[start:end - 1])
             if st != OK:
                 return st, start + done, s
         q_pre[s] = q
         v_pre[s] = v
         xi_pre[s] = xi
-        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end])
+        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end],
+                         pg, Pg_seq[end - 1:end])
         if st != OK:
             return st, end - 1, s
         q_post[s] = q

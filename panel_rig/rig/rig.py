@@ -22,7 +22,9 @@ from panel_rig.rig.safety import (
     check_frequency,
     check_tip,
 )
+from panel_rig.rig.sensor import TipSensor
 from panel_rig.rig.shaker import Shaker
+from panel_rig.rig.turbulence import Turbulence
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +84,17 @@ class TunnelSettings:
     max_rate_mps2: float = 0.0
 
 
+def tunnel_extras(cfg: Any, stepper: Any) -> dict[str, Any]:
+    """The turbulence and the tip sensor of a PanelConfig (``tunnel.turbulence.*``, ``sensor.*``) for a stepper,
+    as keyword arguments of :class:`Rig`; off / perfect when the configuration says so."""
+    from panel_rig.rig.sensor import SensorSettings
+    from panel_rig.rig.turbulence import TurbulenceSettings
+
+    ts = TurbulenceSettings.from_config(cfg)
+    turb = Turbulence(ts, stepper.dt_s, stepper.x_colloc_m, cfg.chord_m) if ts.on else None
+    return {"turbulence": turb, "sensor": TipSensor(SensorSettings.from_config(cfg), stepper.dt_s)}
+
+
 class Rig:
     """A wind tunnel around one stepper, advanced in whole physics steps of ``stepper.dt_s``.
 
@@ -100,6 +113,8 @@ class Rig:
         divergence_errors: tuple[type[BaseException], ...] | None = None,
         logger: EventLogger | None = None,
         control: ControlSettings | None = None,
+        turbulence: Turbulence | None = None,
+        sensor: TipSensor | None = None,
     ) -> None:
         """``logger``: where rig events (aborts, limits acting) go; anything with ``info``/``warning``/``error``
         taking one string (the ROS node's logger, or by default this module's Python logger). ``control``: the
@@ -126,6 +141,11 @@ class Rig:
         self._time_s = 0.0
         self._last_force_npm = 0.0
         self._can_block = callable(getattr(stepper, "advance_sampled", None))
+        # the tunnel's turbulence (u' adds to the airspeed of the step, w' is the gust upwash along the chord) and
+        # the tip sensor between the model's truth and the reading; None: a quiet tunnel, a perfect sensor
+        self.turbulence = turbulence if turbulence is not None and turbulence.on else None
+        self.sensor = sensor if sensor is not None and not sensor.settings.perfect else None
+        self._sensed_tip_m = 0.0  # the sensor's filtered, delayed tip after the last step
 
     # ---- time -------------------------------------------------------------------------------
     @property
@@ -140,8 +160,14 @@ class Rig:
         self._last_force_npm = shaker
         force = shaker + self.control.step(self._time_s)
         try:
-            self.stepper.step(airspeed, force)
+            if self.turbulence is not None:
+                u, w = self.turbulence.block(np.array([airspeed]))
+                self.stepper.step(max(airspeed + float(u[0]), 0.0), force, w[0])  # type: ignore[call-arg]
+            else:
+                self.stepper.step(airspeed, force)
             tip = float(self.stepper.tip_w_over_L)
+            if self.sensor is not None:
+                self._sensed_tip_m = float(self.sensor.push([tip * self.panel_length_m])[0])
             if not (math.isfinite(tip) and np.all(np.isfinite(self.stepper.q))):
                 raise FloatingPointError("model state is not finite")
         except self._divergence as exc:
@@ -229,15 +255,29 @@ class Rig:
         u0, phase0, control0 = self.actuator.airspeed_mps, self.shaker.phase_rad, self.control.snapshot()
         u_in, force, u_out, shaken = self._inputs(n)
         bound = self.limits.max_tip_w_over_L if self.state == RUNNING else math.inf
+        u_model, gust, snap = np.array(u_in), None, None
+        if self.turbulence is not None:
+            snap = self.turbulence.snapshot()
+            u_prime, gust = self.turbulence.block(u_model)
+            u_model = np.maximum(u_model + u_prime, 0.0)
         try:
-            run = self.stepper.advance_sampled(np.array(u_in), np.array(force), ends, bound)  # type: ignore[attr-defined]
+            kw = {} if gust is None else {"gust_upwash_mps": gust}
+            run = self.stepper.advance_sampled(u_model, np.array(force), ends, bound, **kw)  # type: ignore[attr-defined]
             done, samples = run.steps_done, run.samples_done
         except Exception:  # noqa: BLE001 (replayed step by step, where step() turns it into an abort)
             run, done, samples = None, 0, 0
-        if done < n:  # rewind the actuator and the shaker to the event
+        if done < n:  # rewind the actuator, the shaker and the turbulence to the event
             self.actuator.airspeed_mps, self.shaker.phase_rad = u0, phase0
             self.control.restore(control0)
             self._inputs(done)
+            if snap is not None:
+                self.turbulence.restore(snap)  # type: ignore[union-attr]
+                self.turbulence.block(np.array(u_in[:done]))  # type: ignore[union-attr]
+        measured = None
+        if self.sensor is not None and run is not None and done:
+            sensed = self.sensor.push(run.tip_w_over_L[:done] * self.panel_length_m)
+            self._sensed_tip_m = float(sensed[-1])
+            measured = self.sensor.measure(sensed[ends[:samples] - 1])
         if done:
             self._last_force_npm = shaken[done - 1]
         start = self.steps
@@ -250,7 +290,8 @@ class Rig:
             return ReadingBlock(empty, empty, empty, empty, empty, *(np.zeros((0, nm)),) * 3, state=self.state), done
         tip = run.tip_w_over_L[idx]
         block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(shaken)[idx],
-                             tip * self.panel_length_m, tip, run.q, run.qdot_per_s, run.aero_force_npm, self.state)
+                             tip * self.panel_length_m if measured is None else measured, tip, run.q, run.qdot_per_s,
+                             run.aero_force_npm, self.state)
         consumed = done - (int(ends[samples - 1]) if samples else 0)
         return block, consumed
 
@@ -364,14 +405,18 @@ class Rig:
 
     # ---- readings ------------------------------------------------------------------------------
     def reading(self) -> Reading:
-        """The current sample (copies of the model arrays)."""
+        """The current sample (copies of the model arrays); ``tip_w_m`` is the sensor's reading, ``tip_w_over_L``
+        the model's truth."""
         st = self.stepper
         tip = float(st.tip_w_over_L)
+        measured = tip * self.panel_length_m
+        if self.sensor is not None:
+            measured = float(self.sensor.measure(np.array([self._sensed_tip_m]))[0])
         return Reading(
             time_s=self._time_s,
             airspeed_mps=self.actuator.airspeed_mps,
             shaker_force_npm=self._last_force_npm,
-            tip_w_m=tip * self.panel_length_m,
+            tip_w_m=measured,
             tip_w_over_L=tip,
             q=np.array(st.q, dtype=float),
             qdot_per_s=np.array(st.qdot, dtype=float),

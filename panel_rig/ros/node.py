@@ -38,7 +38,7 @@ from visualization_msgs.msg import Marker
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
-from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
+from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.params import CONTROL_FIELDS, LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
@@ -91,8 +91,10 @@ class RigNode(Node):
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
         control = ControlSettings(**{f: p[k] for k, f in CONTROL_FIELDS.items()})
+        # the tunnel's turbulence and the tip sensor (physics config tunnel.turbulence.*, sensor.*)
+        extras = tunnel_extras(self.cfg, stepper) if hasattr(stepper, "x_colloc_m") else {}
         self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel, logger=self.get_logger(),
-                       control=control)
+                       control=control, **extras)
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
         self._shape_period_s = 1.0 / p["shape_rate_hz"]
@@ -107,15 +109,16 @@ class RigNode(Node):
 
         # readings out (sensor-data QoS), commands in (reliable)
         sensor = qos_profile_sensor_data
-        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)
+        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)  # through the sensor model
+        self.pub_truth = self.create_publisher(PointStamped, "tip_displacement/truth", sensor)  # the model's tip
         self.pub_modal = self.create_publisher(JointState, "modal_states", sensor)
         self.pub_airspeed = self.create_publisher(Vector3Stamped, "airspeed", sensor)
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
-        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m)
+        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
-                                                                        self.pub_shape, self.pub_diag)}
+                                                                        self.pub_shape, self.pub_diag, self.pub_truth)}
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -197,15 +200,24 @@ class RigNode(Node):
             )
         return cfg, node_values
 
+    def _as_declared(self, prm: Parameter) -> Parameter:
+        """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
+        (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
+        as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
+        entry = self._table.get(prm.name)
+        if entry is None or not isinstance(entry[0], float):
+            return prm
+        if prm.type_ == Parameter.Type.INTEGER:
+            return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+        if prm.type_ == Parameter.Type.STRING:
+            try:
+                return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+            except ValueError:
+                return prm
+        return prm
+
     def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
-        """An integer for a float parameter is taken as that float (``ros2 param set ... 1``); types stay static."""
-        out = []
-        for prm in params:
-            entry = self._table.get(prm.name)
-            if entry is not None and isinstance(entry[0], float) and prm.type_ == Parameter.Type.INTEGER:
-                prm = Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-            out.append(prm)
-        return out
+        return [self._as_declared(prm) for prm in params]
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
@@ -219,9 +231,7 @@ class RigNode(Node):
         """A read-only parameter (ours or rclpy's own) given the value and type it has."""
         if not self.has_parameter(prm.name) or not self.describe_parameter(prm.name).read_only:
             return False
-        current = self.get_parameter(prm.name)
-        if current.type_ == Parameter.Type.DOUBLE and prm.type_ == Parameter.Type.INTEGER:
-            return float(prm.value) == current.value
+        prm, current = self._as_declared(prm), self.get_parameter(prm.name)
         return prm.type_ == current.type_ and prm.value == current.value
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -446,7 +456,8 @@ class RigNode(Node):
         self._last_tick = now
         target = self._sim_anchor + (now - self._wall_anchor)
         deadline = now + self._publish_period_s
-        while self.rig.advance_to(target, max_steps=2) and time.monotonic() < deadline:
+        chunk = max(2, math.ceil(self._publish_period_s / self.dt_s))  # one compiled call per tick when on time
+        while self.rig.advance_to(target, max_steps=chunk) and time.monotonic() < deadline:
             pass
         lag = target - self.rig.time_s
         if lag > self._max_lag_s:
@@ -483,7 +494,8 @@ class RigNode(Node):
             return
         self.rig.emit_block(block)
         msgs, recording = self._msgs, bool(self._recorders)
-        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed))
+        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
+                (self.pub_truth, msgs.truth))
         for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
             for (pub, msg), data in zip(pubs, encoded):
                 if recording:
