@@ -179,3 +179,27 @@ def test_backbone_coefficient_equals_the_cubic_models(mode):
 def test_exact_runs_only_the_consistent_midpoint_scheme(cfg, model):
     with pytest.raises(ValueError, match="implicit"):
         Stepper(cfg, variant="exact", scheme="paper", model=model)
+
+
+def test_static_command_json_and_bad_input(capsys):
+    import json
+
+    from panel_rig.cli import main
+
+    assert main(["static", "--tip-load-parameter", "5", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["variant"] == "exact" and out["alpha"] == 5.0
+    assert out["tip_w_over_L"] == pytest.approx(BISSHOPP_DRUCKER[5.0][0], rel=5e-3)
+    assert out["tip_u_over_L"] == pytest.approx(BISSHOPP_DRUCKER[5.0][1], rel=5e-3)
+    assert 0 < out["tip_angle_rad"] < np.pi / 2
+    cfg = load_config()
+    P = 2.0 * cfg.bending_stiffness_nm / cfg.panel_length_m**2  # the same load as a force per metre span
+    assert main(["static", "--tip-force", str(P), "--variant", "full", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["alpha"] == pytest.approx(2.0) and out["variant"] == "full"
+    assert out["tip_w_over_L"] > BISSHOPP_DRUCKER[2.0][0] * 1.03  # the cubic overshoots the elastica
+    for bad in (["--tip-load-parameter", "nan"], ["--tip-load-parameter", "1e6"], [],
+                ["--tip-force", "1", "--tip-load-parameter", "1"], ["--tip-force", "1", "--variant", "inertia"]):
+        assert main(["static", *bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("panel-rig: error:"), err

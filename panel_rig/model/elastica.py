@@ -39,8 +39,14 @@ from scipy.optimize import fsolve
 
 from panel_rig.model.structure import build_structure, cantilever_root, mode_shapes
 
-#: default quadrature: elements x Gauss points per element (see docs/validation.md for the convergence)
+#: default quadrature: elements x Gauss points per element (see docs/validation.md for the convergence); with
+#: more than 8 modes the number of elements grows so that each element spans about two of the highest mode's
+#: half-waves
 N_ELEM, N_GAUSS = 4, 6
+
+
+def default_elements(n_modes: int) -> int:
+    return max(N_ELEM, -(-n_modes // 2))
 
 
 @lru_cache(maxsize=None)
@@ -123,20 +129,22 @@ class ExactKinematics:
 
 
 @lru_cache(maxsize=None)
-def exact_kinematics(n_modes: int, n_elem: int = N_ELEM, n_gauss: int = N_GAUSS) -> ExactKinematics:
-    quad = quadrature(n_elem, n_gauss)
+def exact_kinematics(n_modes: int, n_elem: int | None = None, n_gauss: int = N_GAUSS) -> ExactKinematics:
+    quad = quadrature(default_elements(n_modes) if n_elem is None else n_elem, n_gauss)
     return ExactKinematics(quad, mode_shapes(n_modes, quad.s, 1), mode_shapes(n_modes, np.array([1.0]), 1)[:, 0])
 
 
 def shape(q: np.ndarray, s: np.ndarray, n_fine: int = 2001) -> tuple[np.ndarray, np.ndarray]:
-    """(x/L, w/L) of the exact panel at arc-length stations s (fine Simpson running integral)."""
+    """(x/L, w/L) of the exact panel at arc-length stations s (fine Simpson running integral); q (..., n)
+    gives (..., len(s))."""
     q = np.asarray(q, float)
     grid = np.linspace(0.0, 1.0, n_fine)
-    th = q @ mode_shapes(q.shape[0], grid, 1)
-    x = cumulative_simpson(np.cos(th), x=grid, initial=0.0)
-    w = cumulative_simpson(np.sin(th), x=grid, initial=0.0)
+    th = q @ mode_shapes(q.shape[-1], grid, 1)
+    x = cumulative_simpson(np.cos(th), x=grid, initial=0.0, axis=-1)
+    w = cumulative_simpson(np.sin(th), x=grid, initial=0.0, axis=-1)
     s = np.asarray(s, float)
-    return np.interp(s, grid, x), np.interp(s, grid, w)
+    interp = lambda f: np.apply_along_axis(lambda row: np.interp(s, grid, row), -1, f)  # noqa: E731
+    return interp(x), interp(w)
 
 
 # ---- statics: dead transverse tip load (panel-rig static) ------------------------------------------
@@ -151,7 +159,8 @@ class StaticResult:
 
     def as_dict(self) -> dict:
         return {"alpha": self.alpha, "variant": self.variant, "tip_w_over_L": self.tip_w_over_L,
-                "tip_u_over_L": self.tip_u_over_L, "tip_angle_rad": self.tip_angle_rad}
+                "tip_u_over_L": self.tip_u_over_L,
+                "tip_angle_rad": self.tip_angle_rad if np.isfinite(self.tip_angle_rad) else None}
 
 
 STATIC_VARIANTS = ("exact", "full", "stiffness", "linear")
@@ -166,8 +175,11 @@ def _continuation(residual, n: int, alpha: float, steps: int) -> np.ndarray:
     return q
 
 
-def static_tip_load(alpha: float, variant: str = "exact", n_modes: int = 12, n_elem: int = 8,
-                    n_gauss: int = 8) -> StaticResult:
+MAX_ALPHA = 100.0  # |P L^2 / D| accepted by the static solver (tip angle ~ 1.5 rad at 100)
+
+
+def static_tip_load(alpha: float, variant: str = "exact", n_modes: int = 12, n_elem: int | None = None,
+                    n_gauss: int = N_GAUSS) -> StaticResult:
     """Equilibrium under a dead transverse tip force, alpha = P L^2 / D (dimensionless: the stiffness
     beta^4 and the load alpha B(1) are both per D/L).
 
@@ -178,8 +190,8 @@ def static_tip_load(alpha: float, variant: str = "exact", n_modes: int = 12, n_e
     """
     if variant not in STATIC_VARIANTS:
         raise ValueError(f"variant must be one of {STATIC_VARIANTS}, got {variant!r}")
-    if not np.isfinite(alpha):
-        raise ValueError(f"alpha must be finite, got {alpha}")
+    if not (np.isfinite(alpha) and abs(alpha) <= MAX_ALPHA):
+        raise ValueError(f"the tip-load parameter P L^2/D must be finite and within +-{MAX_ALPHA:g}, got {alpha}")
     beta4 = np.array([cantilever_root(m) for m in range(1, n_modes + 1)]) ** 4
     steps = max(1, int(np.ceil(abs(alpha) / 0.25)))
     if variant == "exact":
