@@ -203,3 +203,17 @@ def test_static_command_json_and_bad_input(capsys):
         assert main(["static", *bad]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("panel-rig: error:"), err
+
+
+def test_lco_far_above_flutter_completes_bounded(model):
+    """U/U_f = 1.05, 1.5, 2.0, 2.5 (ROM aero, 12 s from the standard small disturbance): no divergence, a
+    limit cycle (RMS > 0.2) whose tip never leaves |w/L| <= 1; the cubic full model diverges at 1.5 U_f."""
+    from panel_rig.analysis.exact_study import flutter_speed
+    from panel_rig.analysis.lco import lco_sweep
+
+    uf = flutter_speed(model)
+    speeds = uf * np.array([1.05, 1.5, 2.0, 2.5])
+    for r in lco_sweep(model.cfg, speeds, 24.0, "exact", model=model):
+        assert not r.diverged, r
+        assert 0.2 < r.rms_tip_w_over_L and r.peak_tip_w_over_L <= 1.0, r
+    assert lco_sweep(model.cfg, speeds[1:2], 12.0, "full", model=model)[0].diverged

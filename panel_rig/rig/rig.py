@@ -90,7 +90,7 @@ class Rig:
         self.stepper = stepper
         self.dt_s = float(stepper.dt_s)
         self.panel_length_m = float(panel_length_m)
-        self.limits = limits or SafetyLimits()
+        self.limits = limits or SafetyLimits.for_panel(self.panel_length_m)  # tip limit: wall contact
         tunnel = tunnel or TunnelSettings()
         self.actuator = AirspeedActuator(self.dt_s, tunnel.time_constant_s, tunnel.max_rate_mps2)
         self.shaker = Shaker(self.dt_s)

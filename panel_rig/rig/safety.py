@@ -5,16 +5,43 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+#: Distance (m) from the panel's undeformed plane to the nearer tunnel wall. The paper gives no test-section
+#: size; 0.25 m is a panel on the centreline of a ~0.5 m-tall test section (set it to your tunnel).
+DEFAULT_WALL_CLEARANCE_M = 0.25
+#: the paper's panel length (m), for the default limit of a rig built without a panel length
+PAPER_PANEL_LENGTH_M = 0.27
+
+
+def tip_limit_from_wall_clearance(wall_clearance_m: float, panel_length_m: float) -> float:
+    """|tip w/L| at which the trailing edge reaches the tunnel wall: clearance / L, and at most 1 (an
+    inextensible panel of length L cannot put its tip farther than L from its plane; with clearance >= L the
+    wall cannot be hit and the limit is the geometric one)."""
+    if not (math.isfinite(wall_clearance_m) and wall_clearance_m > 0 and math.isfinite(panel_length_m)
+            and panel_length_m > 0):
+        raise ValueError(f"wall clearance and panel length must be finite and > 0, got {wall_clearance_m!r}, "
+                         f"{panel_length_m!r}")
+    return min(1.0, wall_clearance_m / panel_length_m)
+
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run."""
+    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run.
+
+    The default tip limit is physical: the trailing edge touching the tunnel wall
+    (:func:`tip_limit_from_wall_clearance` of the default clearance and the paper's panel, 0.926); use
+    :meth:`for_panel` for another panel or tunnel."""
 
     max_airspeed_mps: float = 30.0
-    max_tip_w_over_L: float = 1.0
+    max_tip_w_over_L: float = tip_limit_from_wall_clearance(DEFAULT_WALL_CLEARANCE_M, PAPER_PANEL_LENGTH_M)
     max_force_npm: float = 10.0
     max_amplitude_npm: float = 10.0
     max_frequency_hz: float = 200.0
+
+    @classmethod
+    def for_panel(cls, panel_length_m: float, wall_clearance_m: float = DEFAULT_WALL_CLEARANCE_M,
+                  **others: float) -> "SafetyLimits":
+        """Limits whose tip limit is the wall contact of a panel of this length at this clearance."""
+        return cls(max_tip_w_over_L=tip_limit_from_wall_clearance(wall_clearance_m, panel_length_m), **others)
 
     def __post_init__(self) -> None:
         for f in fields(self):
