@@ -51,7 +51,7 @@ def test_linearisation_equals_the_cubic_models_matrices():
     kin = exact_kinematics(s.n_modes)
     n = s.n_modes
     M, h, b, Jv = np.zeros((n, n)), np.zeros(n), np.zeros(n), np.zeros((n, n))
-    work = np.zeros((3 * n + 5, kin.psi.shape[1]))
+    work = np.zeros((3 * n + 7, kin.psi.shape[1]))
     exact_eval(np.zeros(n), np.ones(n), kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem, 1.0,
                True, M, h, b, Jv, work)
     np.testing.assert_allclose(M, np.eye(n), atol=1e-9)
