@@ -217,3 +217,14 @@ def test_lco_far_above_flutter_completes_bounded(model):
         assert not r.diverged, r
         assert 0.2 < r.rms_tip_w_over_L and r.peak_tip_w_over_L <= 1.0, r
     assert lco_sweep(model.cfg, speeds[1:2], 12.0, "full", model=model)[0].diverged
+
+
+def test_exact_is_a_variant_of_the_run_commands(capsys):
+    import json
+
+    from panel_rig.cli import main
+
+    assert main(["lco", "--airspeed", "5", "--duration", "0.5", "--variant", "exact", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["diverged"] is False
+    assert main(["lco", "--airspeed", "5", "--duration", "0.5", "--variant", "exact", "--scheme", "paper"]) == 2
+    assert "implicit" in capsys.readouterr().err
