@@ -228,3 +228,14 @@ def test_exact_is_a_variant_of_the_run_commands(capsys):
     assert json.loads(capsys.readouterr().out)["diverged"] is False
     assert main(["lco", "--airspeed", "5", "--duration", "0.5", "--variant", "exact", "--scheme", "paper"]) == 2
     assert "implicit" in capsys.readouterr().err
+
+
+def test_exact_shape_is_inextensible_and_ends_at_the_reported_tip(cfg, model):
+    """The material points at arc length s: polyline length 1 (to discretisation), last point = the tip."""
+    st = Stepper(cfg, variant="exact", aero="none", model=model)
+    st.reset(q=[0.5, -0.1, 0.02])
+    s = np.linspace(0, 1, 401)
+    x, w = st.shape_xw_over_L(s)
+    assert np.sum(np.hypot(np.diff(x), np.diff(w))) == pytest.approx(1.0, abs=1e-4)
+    assert w[-1] == pytest.approx(st.tip_w_over_L, abs=1e-6)
+    np.testing.assert_allclose(st.shape_w_over_L(s), w)
