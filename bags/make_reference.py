@@ -25,7 +25,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 NAME = "stiffness_staircase"
-NODE_PARAMS = ["variant:=stiffness", "tunnel.time_constant_s:=0.3", "publish_rate_hz:=64.0", "shape_rate_hz:=1.0",
+NODE_PARAMS = ["model.variant:=stiffness", "tunnel.time_constant_s:=0.3", "publish_rate_hz:=64.0", "shape_rate_hz:=1.0",
                "diagnostics_rate_hz:=0.5", "record:=true", "fast_max_realtime_factor:=5.0"]
 
 
@@ -74,7 +74,7 @@ def install(bag: Path, dest: Path) -> None:
 
 
 def main() -> int:
-    from panel_rig.recording.analyze import analyze_bag, format_table
+    from panel_rig.cli import analyze_bag, format_table
 
     dest = ROOT / "bags" / NAME
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,8 @@
     python benchmarks/run.py [--json] [--node]
 
 One core, nonlinear `full` variant (and `exact`, keys exact_*), dt = 1/2048 s, near the flutter speed (1.05 U_f).
---node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py).
+--node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py) and its start-up time,
+cold and warm (benchmarks/startup.py).
 """
 
 from __future__ import annotations
@@ -83,8 +84,10 @@ def main() -> int:
         print(f"recorder benchmark skipped: {exc}", file=sys.stderr)
     if args.node:
         from node_realtime import measure as node
+        from startup import measure as startup
 
         out.update(node())
+        out.update(startup())
     if args.json:
         print(json.dumps(out))
     else:

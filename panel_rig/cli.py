@@ -224,22 +224,32 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from panel_rig.ros.node import main as node_main
+def _node_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.node import main
 
-    return node_main(args.rest)
-
-
-def cmd_operate(args: argparse.Namespace) -> int:
-    from panel_rig.ros.operator import main as operator_main
-
-    return operator_main([args.profile, *args.rest])
+    return main(argv)
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    from panel_rig.demo import main as demo_main
+def _operator_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.operator import main
 
-    return demo_main(args.rest)
+    return main(argv)
+
+
+def _demo_main(argv: Sequence[str]) -> int:
+    from panel_rig.demo import main
+
+    return main(argv)
+
+
+#: subcommands that are programs of their own (ROS arguments included): their argv is passed on untouched
+PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
+    "run": (_node_main, "the live rig node (same as `ros2 run panel_rig rig_node`): [--fast] [--params FILE] "
+                        "[--ros-args ...]"),
+    "operate": (_operator_main, "play a test procedure over the rig's command topics: --profile FILE "
+                                "[--namespace NS] [--ros-args ...]"),
+    "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
+}
 
 
 def cmd_bag_recover(args: argparse.Namespace) -> int:
@@ -248,10 +258,117 @@ def cmd_bag_recover(args: argparse.Namespace) -> int:
     return main_bag_recover(args.bag)
 
 
-def cmd_analyze(args: argparse.Namespace) -> int:
-    from panel_rig.recording.analyze import run
+# ---- analyze: glue between the bag loader (recording.series) and the analysis (analysis.bag_analysis)
+ANALYZE_PROG = "panel-rig analyze"
 
-    return run(args)
+
+def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None) -> dict[str, Any]:
+    """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`.
+
+    Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
+    from pathlib import Path
+
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
+    from panel_rig.recording.series import load_series
+
+    crit = criteria if criteria is not None else Criteria()
+    rec = load_series(Path(bag_dir), shapes=rerun_path is not None)
+    core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
+    result: dict[str, Any] = {
+        "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
+        "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")), **core,
+    }
+    result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
+                       if plots_dir is not None else [])
+    result["rerun"] = _write_rerun(rec, Path(rerun_path)) if rerun_path is not None else None
+    return result
+
+
+def _write_rerun(rec: Any, path: Any) -> str:
+    """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live)."""
+    from panel_rig.viz import RerunLogger
+
+    n_modes = max(1, rec.q.shape[1])
+    q = rec.q if rec.q.shape[1] else np.zeros((rec.t_s.size, 1))
+    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name)
+    try:
+        logger.log_batch(rec.t_s, rec.tip_w_over_L, q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
+        for name, events in rec.commands.items():
+            for t, value in events:
+                logger.on_command(name, value, True, t)
+        for t, x, z in rec.shapes:
+            logger.log_shape(t, x, z)
+    finally:
+        logger.close()
+    return str(path)
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """Human-readable plateau table and onset lines of an `analyze_bag` result."""
+    head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
+            f"{'rate_1/s':>8} status")
+    lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
+             f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})", head]
+    for p in result["plateaus"]:
+        lines.append(
+            f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
+            f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {p['dominant_frequency_hz']:>6.2f} "
+            f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
+        )
+    o = result["onset"]
+
+    def num(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f}"
+
+    lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
+                 f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
+                 f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    for path in result.get("plots") or []:
+        lines.append(f"plot: {path}")
+    if result.get("rerun"):
+        lines.append(f"rerun: {result['rerun']}")
+    return "\n".join(lines)
+
+
+def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
+    """The `analyze` options."""
+    p.add_argument("bag", metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--plots", metavar="DIR", help="write time_history/spectrogram/lco_vs_airspeed PNGs here")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="write the replay as a Rerun recording")
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    """0 ok; 2 bad or damaged bag (one stderr line; a damaged one names `panel-rig bag recover`);
+    1 cannot write outputs."""
+    from panel_rig.recording.errors import RecordingError
+
+    try:
+        result = analyze_bag(args.bag, args.plots, args.rerun)
+    except RecordingError as exc:
+        print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"{ANALYZE_PROG}: {exc.filename or args.bag}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - e.g. VizError: never a traceback
+        print(f"{ANALYZE_PROG}: {args.bag}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
+def analyze_main(argv: Sequence[str] | None = None) -> int:
+    """`panel-rig analyze BAG [--json] [--plots DIR] [--rerun OUT.rrd]` on its own (usage error: exit 2)."""
+
+    class _AnalyzeParser(argparse.ArgumentParser):
+        def error(self, message: str) -> None:  # one line, status 2
+            print(f"{ANALYZE_PROG}: {message}", file=sys.stderr)
+            raise SystemExit(2)
+
+    parser = _AnalyzeParser(prog=ANALYZE_PROG, description="airspeed plateaus, LCO and flutter onset from a bag")
+    add_analyze_arguments(parser)
+    return cmd_analyze(parser.parse_args(argv))
 
 
 # ---- parser -----------------------------------------------------------------------------------
@@ -333,34 +450,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed")
     p.set_defaults(func=cmd_paper)
 
-    p = sub.add_parser("run", help="the live rig node (same as `ros2 run panel_rig rig_node`)")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="--fast, --params FILE, --ros-args ...")
-    p.set_defaults(func=cmd_run)
-
-    p = sub.add_parser("operate", help="play a test procedure over the rig's command topics")
-    p.add_argument("--profile", required=True, metavar="FILE.yaml")
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=cmd_operate)
-
-    p = sub.add_parser("demo", help="a tunnel session: node (fast) + staircase operator + recording + summary")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="--profile FILE, --out DIR, --bag-dir DIR, --max-rtf X")
-    p.set_defaults(func=cmd_demo)
+    for name, (_, text) in PROGRAMS.items():  # listed for --help; main() hands their arguments on untouched
+        sub.add_parser(name, help=text, add_help=False)
 
     p = sub.add_parser("bag", help="recording utilities")
     bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
-    r = bag.add_parser("recover", help="rebuild a readable bag from a killed recording")
+    r = bag.add_parser("recover", help="rebuild a readable bag from a killed or corrupt recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)
 
-    from panel_rig.recording.analyze import add_arguments as analyze_arguments
-
     p = sub.add_parser("analyze", help="airspeed plateaus, LCO and flutter onset from a recorded bag")
-    analyze_arguments(p)
+    add_analyze_arguments(p)
     p.set_defaults(func=cmd_analyze)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PROGRAMS:
+        return PROGRAMS[argv[0]][0](argv[1:])
     try:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)

@@ -73,16 +73,17 @@ class PanelConfig:
         return new
 
 
-def _positive(v: float) -> bool:
-    return v > 0
-
-
 @dataclass(frozen=True)
 class _Spec:
+    """One physics parameter: its PanelConfig field, type, check and rule; numeric bounds (``lo``/``hi``,
+    ``None`` for none) are also published in the node's parameter descriptors."""
+
     field: str
     kind: type
     ok: Callable[[Any], bool]
     rule: str
+    lo: float | None = None
+    hi: float | None = None
 
     def check(self, key: str, value: Any) -> Any:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
@@ -102,25 +103,53 @@ class _Spec:
         return value
 
 
+def interval_rule(lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False
+                  ) -> tuple[Callable[[float], bool], str]:
+    """(test, rule text) of the interval lo..hi, either end open or absent (None)."""
+    def ok(v: float) -> bool:
+        above = lo is None or (v > lo if lo_open else v >= lo)
+        below = hi is None or (v < hi if hi_open else v <= hi)
+        return above and below
+
+    if lo is not None and hi is not None:
+        rule = f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    elif lo is not None:
+        rule = f"must be {'>' if lo_open else '>='} {lo:g}"
+    else:
+        rule = f"must be {'<' if hi_open else '<='} {hi:g}"
+    return ok, rule
+
+
+def _num(field: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+         hi_open: bool = False, kind: type = float) -> _Spec:
+    """A number (``kind`` float or int) in the interval lo..hi."""
+    ok, rule = interval_rule(lo, hi, lo_open, hi_open)
+    return _Spec(field, kind, ok, rule, lo, hi)
+
+
+def _choice(field: str, choices: tuple[str, ...]) -> _Spec:
+    return _Spec(field, str, lambda v: v in choices, f"must be one of {choices}")
+
+
 LOAD_POINTS = ("quarter", "three_quarter", "center")
 
 SCHEMA: dict[str, _Spec] = {
-    "panel.length_m": _Spec("panel_length_m", float, _positive, "must be > 0"),
-    "panel.thickness_m": _Spec("panel_thickness_m", float, _positive, "must be > 0"),
-    "airfoil.length_m": _Spec("airfoil_length_m", float, lambda v: v >= 0, "must be >= 0"),
-    "material.density_kgpm3": _Spec("density_kgpm3", float, _positive, "must be > 0"),
-    "material.youngs_modulus_pa": _Spec("youngs_modulus_pa", float, _positive, "must be > 0"),
-    "material.poisson_ratio": _Spec("poisson_ratio", float, lambda v: -1 < v < 0.5, "must lie in (-1, 0.5)"),
-    "structure.damping_ratio": _Spec("damping_ratio", float, lambda v: 0 <= v < 1, "must lie in [0, 1)"),
-    "structure.modes": _Spec("n_modes", int, lambda v: 1 <= v <= 12, "must lie in 1..12"),
-    "air.density_kgpm3": _Spec("air_density_kgpm3", float, lambda v: v >= 0, "must be >= 0"),
-    "aero.elements": _Spec("n_elements", int, lambda v: 4 <= v <= 2000, "must lie in 4..2000"),
-    "aero.wake_elements": _Spec("n_wake", int, lambda v: 2 <= v <= 20000, "must lie in 2..20000"),
-    "aero.wake_relaxation": _Spec("wake_relaxation", float, lambda v: 0 < v < 1, "must lie in (0, 1)"),
-    "aero.rom_modes": _Spec("rom_modes", int, lambda v: v >= 1, "must be >= 1"),
-    "aero.load_point": _Spec("load_point", str, lambda v: v in LOAD_POINTS, f"must be one of {LOAD_POINTS}"),
-    "sim.dt_s": _Spec("dt_s", float, lambda v: 0 < v <= 0.01, "must lie in (0, 0.01]"),
-    "sim.max_tip_w_over_L": _Spec("max_tip_w_over_L", float, _positive, "must be > 0"),
+    "panel.length_m": _num("panel_length_m", 0.0, lo_open=True),
+    "panel.thickness_m": _num("panel_thickness_m", 0.0, lo_open=True),
+    "airfoil.length_m": _num("airfoil_length_m", 0.0),
+    "material.density_kgpm3": _num("density_kgpm3", 0.0, lo_open=True),
+    "material.youngs_modulus_pa": _num("youngs_modulus_pa", 0.0, lo_open=True),
+    "material.poisson_ratio": _num("poisson_ratio", -1.0, 0.5, lo_open=True, hi_open=True),
+    "structure.damping_ratio": _num("damping_ratio", 0.0, 1.0, hi_open=True),
+    "structure.modes": _num("n_modes", 1, 12, kind=int),
+    "air.density_kgpm3": _num("air_density_kgpm3", 0.0),
+    "aero.elements": _num("n_elements", 4, 2000, kind=int),
+    "aero.wake_elements": _num("n_wake", 2, 20000, kind=int),
+    "aero.wake_relaxation": _num("wake_relaxation", 0.0, 1.0, lo_open=True, hi_open=True),
+    "aero.rom_modes": _num("rom_modes", 1, kind=int),
+    "aero.load_point": _choice("load_point", LOAD_POINTS),
+    "sim.dt_s": _num("dt_s", 0.0, 0.01, lo_open=True),
+    "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, lo_open=True),
 }
 
 

@@ -2,7 +2,7 @@
 
 Starts the rig node in fast mode as a subprocess (own ROS domain, localhost discovery, logs under
 ``out/``) recording a bag and a Rerun ``.rrd``, plays ``config/staircase.yaml`` with the scripted
-operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.recording.analyze``
+operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.cli.analyze_bag``
 exists) into PNGs and prints what happened.
 """
 
@@ -48,7 +48,7 @@ def _stop(proc: subprocess.Popen) -> int:
 
 def _analyze(bag: Path, out: Path) -> str:
     """Analyse the new bag: PNGs and analysis.json into out; returns the human-readable table."""
-    from panel_rig.recording.analyze import analyze_bag, format_table
+    from panel_rig.cli import analyze_bag, format_table
 
     result = analyze_bag(bag, plots_dir=out)
     (out / "analysis.json").write_text(json.dumps(result, indent=1, default=str))
@@ -80,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with open(node_log, "w") as log:
         node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", args.profile, "--namespace", "/rig",
+        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", "--profile", args.profile, "--namespace", "/rig",
                              "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
     finally:
         node_code = _stop(node)

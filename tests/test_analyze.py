@@ -24,10 +24,21 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from panel_rig.cli import analyze_bag
+from panel_rig.cli import analyze_main as main
 from panel_rig.recording import BagWriter
-from panel_rig.recording.analyze import analyze_bag, main
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def read_ros2_messages(path: str) -> list:
+    """Decoded messages (schema, channel, message, decoded_message) through mcap's make_reader with
+    the mcap-ros2 DecoderFactory (mcap_ros2.reader.read_ros2_messages is deprecated)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
 REFERENCE = ROOT / "bags" / "stiffness_staircase"
 
 # ------------------------------------------------------------------------------ synthetic bag
@@ -260,7 +271,7 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_LOG_DIR=str(tmp / "log"))
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
-           "-p", "variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
+           "-p", "model.variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
            "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}"]
     saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
     os.environ.update({k: env[k] for k in saved})
@@ -296,7 +307,6 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
 
 
 def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
     from rosbags.highlevel import AnyReader
 
@@ -347,7 +357,6 @@ def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object)
 
 
 def test_live_rrd_entities_and_rows(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
 
     counts = Counter(m.channel.topic for m in read_ros2_messages(str(next(node_run["bag"].glob("*.mcap")))))
@@ -376,7 +385,7 @@ def test_analyze_writes_rrd_from_bag(node_run: dict[str, object], tmp_path: Path
 
 def test_irregular_lco_and_exponential_decay_are_told_apart() -> None:
     """A large bursting oscillation (non-exponential envelope) is an LCO; a clean exponential decay is not."""
-    from panel_rig.recording.analyze import Criteria, _status
+    from panel_rig.analysis.bag_analysis import Criteria, _status
 
     c = Criteria()
     assert _status(0.2, 0.8, -0.2, -0.2, sustain=0.3, r2=0.4, crit=c) == "lco"
@@ -387,7 +396,7 @@ def test_irregular_lco_and_exponential_decay_are_told_apart() -> None:
 
 def test_onset_ignores_plateaus_after_the_first_lco() -> None:
     """Hysteresis: plateaus back below the flutter speed that stay in LCO, or decay later, do not move the bracket."""
-    from panel_rig.recording.analyze import estimate_onset
+    from panel_rig.analysis.bag_analysis import estimate_onset
 
     def p(u, status, t0, rate=0.0):
         return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}

@@ -276,3 +276,43 @@ def test_real_stepper_safety_abort_and_divergence_reset():
     assert rig.state == ABORTED and "diverged" in rig.abort_reason
     r = rig.reading()
     assert np.all(np.isfinite(np.r_[r.q, r.qdot_per_s, r.aero_force_npm])) and math.isfinite(r.tip_w_m)
+
+
+class ListLogger:
+    """Collects rig events (the node passes its ROS logger here)."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, message: str) -> None:
+        self.lines.append(("info", message))
+
+    def warning(self, message: str) -> None:
+        self.lines.append(("warning", message))
+
+    def error(self, message: str) -> None:
+        self.lines.append(("error", message))
+
+
+def test_lowered_limits_act_on_the_present_and_are_logged():
+    """A lowered airspeed limit brings the set-point down (the tunnel ramps with its lag); a lowered tip limit
+    below the present tip aborts; both, and the abort, go to the rig's logger."""
+    log = ListLogger()
+    st = FakeStepper()
+    rig = Rig(st, 0.27, limits=SafetyLimits(max_tip_w_over_L=0.5), tunnel=TunnelSettings(0.5), logger=log)
+    rig.command_airspeed(10.0)
+    rig.advance_to(3.0)
+    assert rig.actuator.airspeed_mps > 9.0
+    rig.set_limits(max_airspeed_mps=4.0)
+    assert rig.actuator.setpoint_mps == 4.0 and rig.state == RUNNING
+    assert any(level == "warning" and "airspeed limit lowered" in text for level, text in log.lines)
+    rig.advance_to(3.1)
+    assert 4.0 < rig.actuator.airspeed_mps < 10.0  # a ramp, not a jump
+    rig.advance_to(8.0)
+    assert rig.actuator.airspeed_mps == pytest.approx(4.0, abs=1e-3)
+    st.q[:] = 0.2  # the panel is deflected now
+    rig.set_limits(max_tip_w_over_L=0.3)
+    assert rig.state == RUNNING  # still inside
+    rig.set_limits(max_tip_w_over_L=0.1)
+    assert rig.state == ABORTED and "tip limit lowered" in rig.abort_reason
+    assert any(level == "error" and "rig aborted" in text for level, text in log.lines)

@@ -11,8 +11,8 @@ from panel_rig.rig.safety import SafetyLimits, tip_limit_from_wall_clearance
 SAMPLE_STEPS = 16  # 128 samples per simulated second
 
 
-def test_default_tip_limit_is_the_wall_contact():
-    assert SafetyLimits().max_tip_w_over_L == pytest.approx(0.25 / 0.27)
+def test_tip_limit_is_the_wall_contact():
+    assert SafetyLimits.for_panel(0.27).max_tip_w_over_L == pytest.approx(0.25 / 0.27)
     assert SafetyLimits.for_panel(0.5, wall_clearance_m=0.1).max_tip_w_over_L == pytest.approx(0.2)
     assert tip_limit_from_wall_clearance(1.0, 0.27) == 1.0  # an inextensible panel cannot reach farther than L
     with pytest.raises(ValueError):
@@ -20,10 +20,11 @@ def test_default_tip_limit_is_the_wall_contact():
 
 
 def test_exact_rig_climbs_a_staircase_to_25_mps_without_abort(model):
-    """Fast block mode, default (wall-contact) safety limits, tunnel lag 1 s: 8 -> 25 m/s through flutter
-    (shaker burst at 11 m/s); the panel flutters, stays within the walls, and the rig never aborts."""
+    """Fast block mode, wall-contact tip limit (0.926), tunnel lag 1 s: 8 -> 25 m/s through flutter (shaker
+    burst at 11 m/s); the panel flutters, stays within the walls, and the rig never aborts."""
     cfg = load_config()
-    rig = Rig(Stepper(cfg, variant="exact", model=model), cfg.panel_length_m)
+    rig = Rig(Stepper(cfg, variant="exact", model=model), cfg.panel_length_m,
+              limits=SafetyLimits.for_panel(cfg.panel_length_m))
     dwell = 5.0
     per_step = int(round(dwell / rig.dt_s / SAMPLE_STEPS))
     tips, rms_at = [], {}

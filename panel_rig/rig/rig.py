@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import traceback
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
@@ -54,6 +55,16 @@ def _divergence_types() -> tuple[type[BaseException], ...]:
     return (DivergenceError, FloatingPointError)
 
 
+class EventLogger(Protocol):
+    """Where the rig reports events: rclpy's node logger and Python's ``logging.Logger`` both fit."""
+
+    def info(self, message: str) -> Any: ...
+
+    def warning(self, message: str) -> Any: ...
+
+    def error(self, message: str) -> Any: ...
+
+
 @dataclass(frozen=True)
 class CommandResult:
     """Outcome of a command: accepted, or refused with a reason."""
@@ -86,11 +97,15 @@ class Rig:
         tunnel: TunnelSettings | None = None,
         sinks: Iterable[Sink] = (),
         divergence_errors: tuple[type[BaseException], ...] | None = None,
+        logger: EventLogger | None = None,
     ) -> None:
+        """``logger``: where rig events (aborts, limits acting) go; anything with ``info``/``warning``/``error``
+        taking one string (the ROS node's logger, or by default this module's Python logger)."""
+        self.log: EventLogger = logger if logger is not None else log
         self.stepper = stepper
         self.dt_s = float(stepper.dt_s)
         self.panel_length_m = float(panel_length_m)
-        self.limits = limits or SafetyLimits.for_panel(self.panel_length_m)  # tip limit: wall contact
+        self.limits = limits or SafetyLimits()
         tunnel = tunnel or TunnelSettings()
         self.actuator = AirspeedActuator(self.dt_s, tunnel.time_constant_s, tunnel.max_rate_mps2)
         self.shaker = Shaker(self.dt_s)
@@ -290,7 +305,7 @@ class Rig:
         self.shaker.reset()
         if self.state != ABORTED:
             self.abort_count += 1
-            log.warning("rig aborted at t = %.3f s: %s", self._time_s, reason)
+            self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
         self.state = ABORTED
         self.abort_reason = reason
 
@@ -304,8 +319,19 @@ class Rig:
         self.abort_reason = ""
 
     def set_limits(self, **changes: float) -> None:
-        """Change safety limits live (validated; raises ValueError)."""
+        """Change safety limits live (validated; raises ValueError). They act on the present state: an airspeed
+        set-point above a lowered airspeed limit is brought down to it (the tunnel ramps down with its lag), and a
+        tip already beyond a lowered tip limit aborts the run. Both are logged."""
         self.limits = replace(self.limits, **changes)
+        act = self.actuator
+        if act.setpoint_mps > self.limits.max_airspeed_mps:
+            self.log.warning(f"airspeed limit lowered to {self.limits.max_airspeed_mps:g} m/s: set-point "
+                             f"{act.setpoint_mps:g} -> {self.limits.max_airspeed_mps:g} m/s, tunnel ramping down")
+            act.setpoint_mps = self.limits.max_airspeed_mps
+        if self.state == RUNNING:
+            reason = check_tip(float(self.stepper.tip_w_over_L), self.limits)
+            if reason:
+                self.abort(f"tip limit lowered below the present tip: {reason}")
 
     # ---- readings ------------------------------------------------------------------------------
     def reading(self) -> Reading:
@@ -369,7 +395,7 @@ class Rig:
     def _sink_failed(self, sink: Sink) -> None:
         self.sink_errors += 1
         if self.sink_errors <= 5:
-            log.exception("sink %r failed", sink)
+            self.log.error(f"sink {sink!r} failed: {traceback.format_exc(limit=3)}")
 
     def close(self) -> None:
         """Close every sink (errors logged)."""
@@ -377,5 +403,5 @@ class Rig:
             try:
                 sink.close()
             except Exception:
-                log.exception("closing sink %r failed", sink)
+                self.log.error(f"closing sink {sink!r} failed: {traceback.format_exc(limit=3)}")
         self.sinks.clear()

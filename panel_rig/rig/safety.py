@@ -8,8 +8,6 @@ from dataclasses import dataclass, fields
 #: Distance (m) from the panel's undeformed plane to the nearer tunnel wall. The paper gives no test-section
 #: size; 0.25 m is a panel on the centreline of a ~0.5 m-tall test section (set it to your tunnel).
 DEFAULT_WALL_CLEARANCE_M = 0.25
-#: the paper's panel length (m), for the default limit of a rig built without a panel length
-PAPER_PANEL_LENGTH_M = 0.27
 
 
 def tip_limit_from_wall_clearance(wall_clearance_m: float, panel_length_m: float) -> float:
@@ -27,12 +25,15 @@ def tip_limit_from_wall_clearance(wall_clearance_m: float, panel_length_m: float
 class SafetyLimits:
     """Operating envelope; commands outside it are refused, a tip beyond it aborts the run.
 
-    The default tip limit is physical: the trailing edge touching the tunnel wall
-    (:func:`tip_limit_from_wall_clearance` of the default clearance and the paper's panel, 0.926); use
-    :meth:`for_panel` for another panel or tunnel."""
+    A tip limit with a physical basis is the trailing edge touching the tunnel wall: :meth:`for_panel`
+    (:func:`tip_limit_from_wall_clearance`; 0.926 for the paper's panel at the default clearance). It suits the
+    ``exact`` structure (|w/L| <= 1 by construction); the field default below stays above L for the cubic
+    variants, whose LCO peaks exceed L just past flutter."""
 
     max_airspeed_mps: float = 30.0
-    max_tip_w_over_L: float = tip_limit_from_wall_clearance(DEFAULT_WALL_CLEARANCE_M, PAPER_PANEL_LENGTH_M)
+    # |w/L| at the tip that aborts: above the largest LCO peaks of the cubic full model just past flutter (~1.2),
+    # below the stepper's own divergence bound sim.max_tip_w_over_L = 2.0, so the rig aborts first.
+    max_tip_w_over_L: float = 1.5
     max_force_npm: float = 10.0
     max_amplitude_npm: float = 10.0
     max_frequency_hz: float = 200.0

@@ -21,9 +21,8 @@ from panel_rig.rig.reading import ReadingBlock
 FRAME_ID = "panel_rig"
 
 
-def stamp(time_s: float) -> Time:
-    """Simulated seconds to builtin_interfaces/Time."""
-    ns = max(0, round(time_s * 1e9))
+def stamp(ns: int) -> Time:
+    """Integer nanoseconds to builtin_interfaces/Time."""
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
@@ -32,9 +31,9 @@ def stamp_ns(time_s: float) -> int:
     return max(0, round(time_s * 1e9))
 
 
-def header(time_s: float, frame_id: str = FRAME_ID) -> Header:
-    """A header stamped with simulated time."""
-    return Header(stamp=stamp(time_s), frame_id=frame_id)
+def header(ns: int, frame_id: str = FRAME_ID) -> Header:
+    """A header stamped at ``ns`` (simulated time, or the ROS clock in real-time mode)."""
+    return Header(stamp=stamp(ns), frame_id=frame_id)
 
 
 def _finite(values: np.ndarray) -> list[float]:
@@ -53,7 +52,7 @@ RED = ColorRGBA(r=0.9, g=0.1, b=0.1, a=1.0)
 
 
 def shape_msg(
-    time_s: float,
+    stamp_ns: int,
     airfoil_length_m: float,
     panel_length_m: float,
     w_over_L: np.ndarray,
@@ -62,7 +61,7 @@ def shape_msg(
     n_airfoil: int = 5,
 ) -> Marker:
     """LINE_STRIP of the rigid airfoil (z = 0) followed by the deflected panel; one colour per point."""
-    m = Marker(header=header(time_s), ns="panel", id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
+    m = Marker(header=header(stamp_ns), ns="panel", id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
     m.pose.orientation.w = 1.0
     m.scale.x = 0.002
     m.color = RED if aborted else BLUE
@@ -81,25 +80,25 @@ def shape_msg(
     return m
 
 
-def diagnostics_msg(time_s: float, aborted: bool, message: str, values: Mapping[str, object]) -> DiagnosticArray:
-    """One DiagnosticStatus for the rig: OK while running, ERROR when aborted."""
+def diagnostics_msg(stamp_ns: int, level: bytes, message: str, values: Mapping[str, object]) -> DiagnosticArray:
+    """One DiagnosticStatus for the rig at ``level`` (DiagnosticStatus.OK / WARN / ERROR)."""
     status = DiagnosticStatus(
-        level=DiagnosticStatus.ERROR if aborted else DiagnosticStatus.OK,
+        level=level,
         name="panel_rig: tunnel",
         message=message,
         hardware_id="panel_rig",
         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
     )
-    return DiagnosticArray(header=header(time_s, ""), status=[status])
+    return DiagnosticArray(header=header(stamp_ns, ""), status=[status])
 
 
 class ReadingMessages:
     """Reusable reading messages, refilled for each sample (no per-sample message construction)."""
 
     def __init__(self, names: Sequence[str], trailing_edge_x_m: float) -> None:
-        self.tip = PointStamped(header=header(0.0), point=Point(x=float(trailing_edge_x_m)))
-        self.modal = JointState(header=header(0.0), name=list(names))
-        self.airspeed = Vector3Stamped(header=header(0.0))
+        self.tip = PointStamped(header=header(0), point=Point(x=float(trailing_edge_x_m)))
+        self.modal = JointState(header=header(0), name=list(names))
+        self.airspeed = Vector3Stamped(header=header(0))
         self._clock = Clock()
         self._marker: Marker | None = None
         self._marker_aborted = False
@@ -129,10 +128,11 @@ class ReadingMessages:
         self._clock_tpl = CdrTemplate(self._clock, lambda m: m.clock, [], [])
         self.templated = all(t.ok for t in self._tpl)
 
-    def encode(self, block: ReadingBlock) -> Iterator[tuple[int, bytes, bytes, bytes]]:
-        """For each sample: (stamp ns, CDR bytes of tip_displacement, modal_states, airspeed). Non-finite
-        values become 0. The message objects (:attr:`tip`, ...) keep their type and layout for recorders."""
-        ns_all = [max(0, round(t * 1e9)) for t in block.time_s.tolist()]
+    def encode(self, block: ReadingBlock, offset_ns: int = 0) -> Iterator[tuple[int, bytes, bytes, bytes]]:
+        """For each sample: (stamp ns = simulated time + ``offset_ns``, CDR bytes of tip_displacement,
+        modal_states, airspeed). Non-finite values become 0. The message objects (:attr:`tip`, ...) keep their
+        type and layout for recorders."""
+        ns_all = [stamp_ns(t) + offset_ns for t in block.time_s.tolist()]
         tip_z, airspeed = _finite(block.tip_w_m), _finite(block.airspeed_mps)
         q, qdot, effort = _finite(block.q), _finite(block.qdot_per_s), _finite(block.aero_force_npm)
         if self.templated:
@@ -167,16 +167,16 @@ class ReadingMessages:
         self._clock.clock.sec, self._clock.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
         return self._clock
 
-    def shape(self, time_s: float, airfoil_length_m: float, panel_length_m: float, w_over_L: np.ndarray,
+    def shape(self, stamp_ns: int, airfoil_length_m: float, panel_length_m: float, w_over_L: np.ndarray,
               x_over_L: np.ndarray, aborted: bool = False) -> Marker:
         """As :func:`shape_msg`, refilling one Marker (panel points' z, colours, stamp)."""
         m = self._marker
         n_panel = len(x_over_L)
         if m is None or len(m.points) < n_panel:
-            self._marker = m = shape_msg(time_s, airfoil_length_m, panel_length_m, w_over_L, x_over_L, aborted)
+            self._marker = m = shape_msg(stamp_ns, airfoil_length_m, panel_length_m, w_over_L, x_over_L, aborted)
             self._marker_aborted = aborted
             return m
-        st = stamp(time_s)
+        st = stamp(stamp_ns)
         m.header.stamp.sec, m.header.stamp.nanosec = st.sec, st.nanosec
         colour = RED if aborted else BLUE
         m.color = colour

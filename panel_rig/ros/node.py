@@ -8,7 +8,6 @@ the steady clock. Fast mode (``fast: true``): steps as fast as possible, publish
 from __future__ import annotations
 
 import math
-import os
 import signal
 import sys
 import threading
@@ -20,9 +19,10 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped, Vector3Stamped
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -35,12 +35,12 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
+from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
 from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
-from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params, coerce
+from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
 
 NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -69,13 +69,14 @@ class RigNode(Node):
 
     def __init__(self, *, stepper_factory: StepperFactory | None = None, **node_kwargs: Any) -> None:
         super().__init__(NODE_NAME, **node_kwargs)
+        self._table = parameter_table()
         self.cfg, p = self._read_parameters()
         self.fast: bool = p["fast"]
         limits = SafetyLimits(**{f: p[k] for k, f in LIMIT_FIELDS.items()})
         tunnel = TunnelSettings(p["tunnel.time_constant_s"], p["tunnel.max_rate_mps2"])
         factory = stepper_factory or default_stepper_factory
         try:
-            stepper = factory(self.cfg, p["variant"], p["aero"])
+            stepper = factory(self.cfg, p["model.variant"], p["model.aero"])
         except StartupError:
             raise
         except Exception as exc:
@@ -87,7 +88,7 @@ class RigNode(Node):
             stepper.reset()
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
-        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel)
+        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel, logger=self.get_logger())
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
         self._shape_period_s = 1.0 / p["shape_rate_hz"]
@@ -125,6 +126,9 @@ class RigNode(Node):
         self.create_service(Trigger, "abort", self._on_abort)
 
         # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
+        self._diag_rejected = 0
+        # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
+        self._stamp_offset_ns = 0 if self.fast else self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
         self._wall0 = time.monotonic()
         self._wall_anchor = self._wall0
         self._sim_anchor = self.rig.time_s
@@ -138,39 +142,42 @@ class RigNode(Node):
         self._pending: dict[str, Any] = {}
         self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
         self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
+        self.add_pre_set_parameters_callback(self._before_set_parameters)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         mode = "fast" if self.fast else "real-time"
         self.get_logger().info(
             f"panel_rig up ({mode}): dt = {self.dt_s:.6g} s, publish {1 / self._publish_period_s:g} Hz, "
-            f"variant {p['variant']}, aero {p['aero']}, {len(self._names)} modes"
+            f"variant {p['model.variant']}, aero {p['model.aero']}, {len(self._names)} modes; readings stamped "
+            + ("with simulated time (/clock published)" if self.fast else "with the ROS clock")
         )
 
     # ---- parameters ------------------------------------------------------------------------------
     def _read_parameters(self) -> tuple[PanelConfig, dict[str, Any]]:
-        defaults = PanelConfig()
-        for key, spec in SCHEMA.items():
-            self.declare_parameter(
-                key, getattr(defaults, spec.field),
-                ParameterDescriptor(dynamic_typing=True, description=f"physics ({spec.rule}); not live"),
-            )
-        for name, spec in NODE_PARAMS.items():
-            self.declare_parameter(
-                name, spec.default,
-                ParameterDescriptor(dynamic_typing=True, description=spec.description + ("" if spec.live else "; not live")),
-            )
-        unknown = sorted(set(getattr(self, "_parameter_overrides", {})) - set(SCHEMA) - set(NODE_PARAMS) - {"use_sim_time"})
+        """Declare every parameter statically typed (with range and read-only flag) and read them."""
+        overrides = getattr(self, "_parameter_overrides", {})
+        for name, (default, _) in self._table.items():  # an integer given for a float parameter is that float
+            given = overrides.get(name)
+            if isinstance(default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
+                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(given.value))
+        problems = []
+        for name, (default, descriptor) in self._table.items():
+            try:
+                self.declare_parameter(name, default, descriptor)
+            except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+                problems.append(f"{name}: {exc}")
+        if problems:
+            raise StartupError("invalid parameters: " + "; ".join(problems))
+        unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})
         if unknown:
             self.get_logger().warning(f"ignoring unknown parameters: {', '.join(unknown)}")
-        given = set(getattr(self, "_parameter_overrides", {}))
         self.get_logger().info(
-            f"physics parameters given: {len(given & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
+            f"physics parameters given: {len(set(overrides) & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
         )
         node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
         problems = check_node_params(node_values)
         if problems:
             raise StartupError("invalid node parameters: " + "; ".join(problems))
-        node_values = {n: coerce(n, v) for n, v in node_values.items()}
         physics = {k: self.get_parameter(k).value for k in SCHEMA}
         if node_values["physics_dt"] > 0:
             physics["sim.dt_s"] = node_values["physics_dt"]
@@ -185,18 +192,39 @@ class RigNode(Node):
             )
         return cfg, node_values
 
+    def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
+        """An integer for a float parameter is taken as that float (``ros2 param set ... 1``); types stay static."""
+        out = []
+        for prm in params:
+            entry = self._table.get(prm.name)
+            if entry is not None and isinstance(entry[0], float) and prm.type_ == Parameter.Type.INTEGER:
+                prm = Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+            out.append(prm)
+        return out
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
+        """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
+        so ``ros2 param load`` of the file the node started with (or of a ``ros2 param dump``) succeeds."""
+        changing = [prm for prm in parameter_list if not self._unchanged_read_only(prm)]
+        if not changing:
+            return SetParametersResult(successful=True, reason="unchanged (read-only)")
+        return super().set_parameters_atomically(changing)
+
+    def _unchanged_read_only(self, prm: Parameter) -> bool:
+        """A read-only parameter (ours or rclpy's own) given the value and type it has."""
+        if not self.has_parameter(prm.name) or not self.describe_parameter(prm.name).read_only:
+            return False
+        current = self.get_parameter(prm.name)
+        if current.type_ == Parameter.Type.DOUBLE and prm.type_ == Parameter.Type.INTEGER:
+            return float(prm.value) == current.value
+        return prm.type_ == current.type_ and prm.value == current.value
+
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live change: physics and structural parameters are refused with a reason."""
         for prm in params:
-            if prm.name in SCHEMA:
-                return SetParametersResult(
-                    successful=False, reason=f"{prm.name}: physics parameters cannot change live; restart the node"
-                )
             spec = NODE_PARAMS.get(prm.name)
             if spec is None:
                 continue
-            if not spec.live:
-                return SetParametersResult(successful=False, reason=f"{prm.name}: cannot change live; restart the node")
             reason = spec.check(prm.value)
             if reason:
                 return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
@@ -208,7 +236,7 @@ class RigNode(Node):
         for prm in params:
             if prm.name not in NODE_PARAMS:
                 continue
-            value = coerce(prm.name, prm.value)
+            value = prm.value
             if prm.name in LIMIT_FIELDS:
                 limits[LIMIT_FIELDS[prm.name]] = value
             elif prm.name == "tunnel.time_constant_s":
@@ -222,7 +250,7 @@ class RigNode(Node):
             else:
                 self._pending[prm.name] = value
         if limits:
-            self.rig.set_limits(**limits)
+            self.rig.set_limits(**limits)  # acts on the present: ramps the tunnel down or aborts, logged
         self.get_logger().info("parameters set: " + ", ".join(f"{p.name}={p.value}" for p in params))
 
     def apply_pending(self) -> None:
@@ -256,7 +284,7 @@ class RigNode(Node):
             except Exception as exc:  # noqa: BLE001 (a missing recorder must not stop the rig)
                 self.get_logger().error(f"recording disabled: {type(exc).__name__}: {exc}")
         self._rerun: Any = None
-        if p["rerun"] != "off":
+        if p["rerun"] != "none":
             mode, _, target = p["rerun"].partition(":")
             try:
                 from panel_rig.viz import RerunLogger
@@ -267,9 +295,13 @@ class RigNode(Node):
             except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
                 self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
 
-    def _publish(self, pub: Any, msg: Any, time_s: float, qos: str = "sensor") -> None:
+    def _stamp_ns(self, time_s: float) -> int:
+        """The stamp of simulated time ``time_s``: itself in fast mode (with /clock), the ROS clock in real time."""
+        return messages.stamp_ns(time_s) + self._stamp_offset_ns
+
+    def _publish(self, pub: Any, msg: Any, stamp_ns: int, qos: str = "sensor") -> None:
         """Serialise once; the same bytes go to the topic and to every recorder."""
-        self._publish_bytes(pub, msg, serialize_message(msg), messages.stamp_ns(time_s), qos)
+        self._publish_bytes(pub, msg, serialize_message(msg), stamp_ns, qos)
 
     def _publish_bytes(self, pub: Any, msg: Any, data: bytes, stamp_ns: int, qos: str = "sensor") -> None:
         pub.publish(data)
@@ -290,7 +322,7 @@ class RigNode(Node):
             result = command(msg.data)
             for rec in self._recorders:
                 try:
-                    rec.write(full, msg, messages.stamp_ns(self.rig.time_s), qos="reliable")
+                    rec.write(full, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
                 except Exception as exc:  # noqa: BLE001
                     self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
             if not result.accepted:
@@ -330,6 +362,7 @@ class RigNode(Node):
             # cannot catch up within the bound: count it and let simulated time slip
             self.rig.note_overrun()
             self._wall_anchor += lag
+            self._stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
             self.get_logger().warning(f"overrun: {lag * 1e3:.1f} ms behind the clock", throttle_duration_sec=1.0)
         self.publish_readings()
 
@@ -360,7 +393,7 @@ class RigNode(Node):
         self.rig.emit_block(block)
         msgs, recording = self._msgs, bool(self._recorders)
         pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed))
-        for stamp_ns, *encoded in msgs.encode(block):
+        for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
             for (pub, msg), data in zip(pubs, encoded):
                 if recording:
                     self._publish_bytes(pub, msg, data, stamp_ns)
@@ -375,8 +408,9 @@ class RigNode(Node):
 
     def _publish_shape(self, t: float, aborted: bool) -> None:
         w = self.rig.shape_w_over_L(self._x_over_L)
-        marker = self._msgs.shape(t, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, aborted)
-        self._publish(self.pub_shape, marker, t, qos="reliable")
+        stamp = self._stamp_ns(t)
+        marker = self._msgs.shape(stamp, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, aborted)
+        self._publish(self.pub_shape, marker, stamp, qos="reliable")
         if self._rerun is not None:
             try:
                 self._rerun.queue_shape(t, [pt.x for pt in marker.points], [pt.z for pt in marker.points])
@@ -424,8 +458,16 @@ class RigNode(Node):
             "physics_dt_s": f"{self.dt_s:.9g}",
             "sink_errors": rig.sink_errors,
         }
-        message = f"{rig.state}" + (f": {rig.abort_reason}" if rig.state == ABORTED else "")
-        self._publish(self.pub_diag, messages.diagnostics_msg(sim, rig.state == ABORTED, message, values), sim, "reliable")
+        rejected_now = rig.rejected_count - self._diag_rejected
+        self._diag_rejected = rig.rejected_count
+        if rig.state == ABORTED:
+            level, message = DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
+        elif rejected_now:
+            level, message = DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
+        else:
+            level, message = DiagnosticStatus.OK, rig.state
+        stamp = self._stamp_ns(sim)
+        self._publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp, "reliable")
 
     def close(self) -> None:
         """Close sinks and recorders (idempotent)."""
@@ -465,60 +507,50 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
             next_spin = now + FAST_SPIN_PERIOD_S
 
 
-def _split_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """(own args, ROS args) around ``--ros-args``."""
-    argv = list(argv)
-    if "--ros-args" in argv:
-        i = argv.index("--ros-args")
-        return argv[:i], argv[i:]
-    return argv, []
+def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
+    """The parameters of ``panel_rig:`` parameter files (e.g. the physics file), as node overrides.
 
-
-def params_for_any_namespace(path: str) -> str:
-    """A parameters file whose ``panel_rig:`` (node name at the root) sections also apply in a namespace.
-
-    rcl matches a plain ``panel_rig:`` key only to ``/panel_rig``; the node runs as ``/rig/panel_rig``. Such
-    sections are re-keyed ``/**`` into a temporary copy (other keys are kept). Unreadable files are passed on
-    unchanged, for rcl to report.
+    Given to the node as ``parameter_overrides``, they apply in any namespace (rcl matches a plain
+    ``panel_rig:`` key only to ``/panel_rig``) and win over ``--ros-args --params-file`` values. Later files win.
     """
-    import tempfile
+    values: dict[str, Any] = {}
+    for path in paths:
+        try:
+            values.update(read_params_file(path))
+        except ConfigError as exc:
+            raise StartupError(str(exc)) from None
+    return [Parameter(name, value=value) for name, value in values.items()]
 
-    import yaml
 
-    try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
-        return path
-    if not isinstance(doc, dict) or not ({NODE_NAME, f"/{NODE_NAME}"} & set(doc)):
-        return path
-    rekeyed = {("/**" if k in (NODE_NAME, f"/{NODE_NAME}") else k): v for k, v in doc.items()}
-    fd, out = tempfile.mkstemp(prefix="panel_rig_params_", suffix=".yaml")
-    with os.fdopen(fd, "w") as fh:
-        yaml.safe_dump(rekeyed, fh)
-    return out
+def parse_args(argv: Sequence[str]) -> tuple[Any, list[str]]:
+    """(own options, full argument list for rclpy). Own options are whatever is not a ROS argument
+    (rclpy's ``remove_ros_args``): ``--fast``, ``--params FILE`` (repeatable)."""
+    import argparse
+
+    from rclpy.utilities import remove_ros_args
+
+    parser = argparse.ArgumentParser(prog="rig_node", description="panel_rig emulated wind tunnel node")
+    parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="a 'panel_rig:' parameters file applied in any namespace (repeatable)")
+    own = remove_ros_args(["rig_node", *argv])[1:]
+    return parser.parse_args(own), ["rig_node", *argv]
 
 
 def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None) -> int:
     """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name. Returns an exit code.
 
-    Own options before ``--ros-args``: ``--fast``, ``--params FILE`` (a parameters file applied in any
-    namespace, e.g. ``config/tang_dowell_2002.yaml`` with its ``panel_rig:`` key; loaded after ``--ros-args``
-    files, so its values win).
+    Own options anywhere outside ``--ros-args ... [--]``: ``--fast``, ``--params FILE`` (see
+    :func:`overrides_from_files`).
     """
-    import argparse
-
-    own, ros_args = _split_args(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="rig_node", description="panel_rig emulated wind tunnel node")
-    parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
-    parser.add_argument("--params", action="append", default=[], help="ROS 2 parameters file (repeatable)")
-    opts = parser.parse_args(own)
-    extra: list[str] = []
-    for path in opts.params:
-        extra += ["--params-file", params_for_any_namespace(path)]
+    opts, rcl_args = parse_args(sys.argv[1:] if argv is None else list(argv))
+    try:
+        overrides = overrides_from_files(opts.params)
+    except StartupError as exc:
+        print(f"rig_node: {exc}", file=sys.stderr)
+        return 2
     if opts.fast:
-        extra += ["-p", "fast:=true"]
-    if extra:
-        ros_args = (ros_args or ["--ros-args"]) + extra
+        overrides.append(Parameter("fast", value=True))
 
     stop = threading.Event()
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -526,13 +558,13 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
     def on_signal(signum: int, frame: object) -> None:
         stop.set()
 
-    rclpy.init(args=["rig_node", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=rcl_args, signal_handler_options=SignalHandlerOptions.NO)
     for s in previous:
         signal.signal(s, on_signal)
     node: RigNode | None = None
     code = 0
     try:
-        node = RigNode(stepper_factory=stepper_factory)
+        node = RigNode(stepper_factory=stepper_factory, parameter_overrides=overrides)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         spin(node, executor, stop.is_set)

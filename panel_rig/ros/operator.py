@@ -274,22 +274,20 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
+    from rclpy.utilities import remove_ros_args
+
     args = list(sys.argv[1:] if argv is None else argv)
-    ros_args: list[str] = []
-    if "--ros-args" in args:
-        i = args.index("--ros-args")
-        args, ros_args = args[:i], args[i:]
     parser = argparse.ArgumentParser(prog="rig_operator", description="play a profile against the panel_rig node")
-    parser.add_argument("profile", help="YAML profile (see config/staircase.yaml)")
+    parser.add_argument("--profile", required=True, metavar="FILE.yaml", help="YAML profile (see config/staircase.yaml)")
     parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
     parser.add_argument("--timeout", type=float, default=10.0, help="wall seconds without readings = failure")
-    opts = parser.parse_args(args)
+    opts = parser.parse_args(remove_ros_args(["rig_operator", *args])[1:])
     try:
         steps = load_profile(opts.profile)
     except ProfileError as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         return 2
-    rclpy.init(args=["rig_operator", *ros_args])
+    rclpy.init(args=["rig_operator", *args])
     node = Operator(opts.namespace, opts.timeout)
     code = 0
     try:

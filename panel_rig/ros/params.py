@@ -1,4 +1,10 @@
-"""The node's own parameters (beyond the physics in ``panel_rig.config.SCHEMA``): defaults, checks, liveness."""
+"""The node's own parameters (beyond the physics in ``panel_rig.config.SCHEMA``): defaults, checks, liveness.
+
+Names form one nested namespace in which no name is also the prefix of another (so ``ros2 param dump``
+writes one nested YAML that ``ros2 param load`` takes back). Defaults of the rig's settings come from the
+rig's own dataclasses (:class:`SafetyLimits`, :class:`TunnelSettings`); ``config/rig.yaml`` is pinned to
+these defaults by a test.
+"""
 
 from __future__ import annotations
 
@@ -8,34 +14,44 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
-_RERUN = re.compile(r"^(off|save:.+|connect:.*)$")
+from panel_rig.config import SCHEMA, PanelConfig, interval_rule
+from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
+from panel_rig.rig.rig import TunnelSettings
+from panel_rig.rig.safety import SafetyLimits
+
+# "none", not "off": YAML 1.1 (rcl, `ros2 param load`) reads an unquoted off as the boolean false
+_RERUN = re.compile(r"^(none|save:.+|connect:.*)$")
 
 
 @dataclass(frozen=True)
 class NodeParam:
-    """A node parameter: default (also its type), whether it may change live, a check returning a reason."""
+    """A node parameter: default (also its type), whether it may change live, a check returning a reason,
+    and numeric bounds ``lo``/``hi`` (closed ends, published as the descriptor's range; None: unbounded)."""
 
     default: Any
     live: bool
     check: Callable[[Any], str | None]
     description: str
+    lo: float | None = None
+    hi: float | None = None
 
 
-def _number(lo: float, hi: float, lo_open: bool = False) -> Callable[[Any], str | None]:
+def _number(default: float, live: bool, description: str, lo: float, hi: float, lo_open: bool = False) -> NodeParam:
+    ok, rule = interval_rule(lo, hi, lo_open)
+
     def check(v: Any) -> str | None:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             return f"expected a finite number, got {v!r}"
-        if (v <= lo if lo_open else v < lo) or v > hi:
-            return f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {v!r}"
-        return None
+        return None if ok(v) else f"{rule}, got {v!r}"
 
-    return check
+    return NodeParam(float(default), live, check, description, lo, hi)
 
 
-def _one_of(choices: tuple[str, ...]) -> Callable[[Any], str | None]:
-    return lambda v: None if v in choices else f"must be one of {choices}, got {v!r}"
+def _one_of(default: str, choices: tuple[str, ...], description: str) -> NodeParam:
+    return NodeParam(default, False, lambda v: None if v in choices else f"must be one of {choices}, got {v!r}",
+                     f"{description}: {' | '.join(choices)}")
 
 
 def _bool(v: Any) -> str | None:
@@ -47,30 +63,38 @@ def _string(v: Any) -> str | None:
 
 
 def _rerun(v: Any) -> str | None:
-    return None if isinstance(v, str) and _RERUN.match(v) else f"expected off | save:PATH | connect:URL, got {v!r}"
+    return None if isinstance(v, str) and _RERUN.match(v) else f"expected none | save:PATH | connect:URL, got {v!r}"
 
+
+_LIMITS, _TUNNEL = SafetyLimits(), TunnelSettings()
 
 NODE_PARAMS: dict[str, NodeParam] = {
-    "physics_dt": NodeParam(0.0, False, _number(0.0, 0.01), "physics step, s (0: use sim.dt_s)"),
-    "publish_rate_hz": NodeParam(500.0, True, _number(1.0, 5000.0), "readings and timer tick rate, Hz"),
-    "shape_rate_hz": NodeParam(30.0, True, _number(0.1, 200.0), "panel_shape marker rate (simulated time), Hz"),
-    "diagnostics_rate_hz": NodeParam(2.0, True, _number(0.1, 50.0), "/diagnostics rate (wall time), Hz"),
-    "max_lag_s": NodeParam(0.05, True, _number(0.0, 10.0, lo_open=True), "real-time lag counted as an overrun, s"),
+    "physics_dt": _number(0.0, False, "physics step, s (0: use sim.dt_s)", 0.0, 0.01),
+    "publish_rate_hz": _number(500.0, True, "readings and timer tick rate, Hz", 1.0, 5000.0),
+    "shape_rate_hz": _number(30.0, True, "panel_shape marker rate (simulated time), Hz", 0.1, 200.0),
+    "diagnostics_rate_hz": _number(2.0, True, "/diagnostics rate (wall time), Hz", 0.1, 50.0),
+    "max_lag_s": _number(0.05, True, "real-time lag counted as an overrun, s", 0.0, 10.0, lo_open=True),
     "fast": NodeParam(False, False, _bool, "run as fast as possible and publish /clock"),
-    "fast_max_realtime_factor": NodeParam(0.0, True, _number(0.0, 1e6),
-                                          "fast mode: at most this many simulated s per wall s (0: no cap)"),
-    "variant": NodeParam(DEFAULT_VARIANT, False, _one_of(tuple(VARIANTS)), "model variant"),
-    "aero": NodeParam(DEFAULT_AERO, False, _one_of(RIG_AERO_MODELS), "aerodynamics: reduced-order or full vortex lattice"),
-    "tunnel.time_constant_s": NodeParam(1.0, True, _number(0.0, 1000.0), "airspeed first-order lag, s"),
-    "tunnel.max_rate_mps2": NodeParam(0.0, True, _number(0.0, 1000.0), "airspeed rate limit, m/s^2 (0: none)"),
-    "safety.max_airspeed_mps": NodeParam(30.0, True, _number(0.0, 1000.0, lo_open=True), "airspeed command limit"),
-    "safety.max_tip_w_over_L": NodeParam(1.5, True, _number(0.0, 100.0, lo_open=True), "tip |w/L| that aborts"),
-    "shaker.max_force_npm": NodeParam(10.0, True, _number(0.0, 1e6, lo_open=True), "held force limit, N/m"),
-    "shaker.max_amplitude_npm": NodeParam(10.0, True, _number(0.0, 1e6, lo_open=True), "sine amplitude limit, N/m"),
-    "shaker.max_frequency_hz": NodeParam(200.0, True, _number(0.0, 1e5, lo_open=True), "sine frequency limit, Hz"),
+    "fast_max_realtime_factor": _number(0.0, True, "fast mode: at most this many simulated s per wall s (0: no cap)",
+                                        0.0, 1e6),
+    "model.variant": _one_of(DEFAULT_VARIANT, tuple(VARIANTS), "structural model variant"),
+    "model.aero": _one_of(DEFAULT_AERO, RIG_AERO_MODELS, "aerodynamics: reduced-order or full vortex lattice"),
+    "tunnel.time_constant_s": _number(_TUNNEL.time_constant_s, True, "airspeed first-order lag, s", 0.0, 1000.0),
+    "tunnel.max_rate_mps2": _number(_TUNNEL.max_rate_mps2, True, "airspeed rate limit, m/s^2 (0: none)", 0.0, 1000.0),
+    "safety.max_airspeed_mps": _number(_LIMITS.max_airspeed_mps, True,
+                                       "airspeed limit, m/s (lowering it below the set-point ramps the tunnel down)",
+                                       0.0, 1000.0, lo_open=True),
+    "safety.max_tip_w_over_L": _number(_LIMITS.max_tip_w_over_L, True,
+                                       "tip |w/L| that aborts the run (also when lowered below the present tip)",
+                                       0.0, 100.0, lo_open=True),
+    "shaker.max_force_npm": _number(_LIMITS.max_force_npm, True, "held force limit +-, N/m", 0.0, 1e6, lo_open=True),
+    "shaker.max_amplitude_npm": _number(_LIMITS.max_amplitude_npm, True, "sine amplitude limit, N/m", 0.0, 1e6,
+                                        lo_open=True),
+    "shaker.max_frequency_hz": _number(_LIMITS.max_frequency_hz, True, "sine frequency limit, Hz", 0.0, 1e5,
+                                       lo_open=True),
     "record": NodeParam(False, False, _bool, "record a rosbag2 MCAP of every topic and command"),
     "bag_dir": NodeParam("bags", False, _string, "directory for recordings"),
-    "rerun": NodeParam("off", False, _rerun, "Rerun sink: off | save:PATH | connect:URL"),
+    "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
 }
 
 #: node parameter -> field of :class:`panel_rig.rig.safety.SafetyLimits`
@@ -96,9 +120,29 @@ def check_node_params(values: Mapping[str, Any]) -> list[str]:
     return problems
 
 
-def coerce(name: str, value: Any) -> Any:
-    """Ints given for float parameters become floats (after the check)."""
-    default = NODE_PARAMS[name].default
-    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    return value
+def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
+                ) -> ParameterDescriptor:
+    """A statically typed descriptor (type of the default) with its range and read-only flag."""
+    kind = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+            float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}[type(default)]
+    d = ParameterDescriptor(type=kind, description=description + ("; read-only: restart to change" if read_only else ""),
+                            read_only=read_only)
+    if kind == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
+        d.floating_point_range = [FloatingPointRange(from_value=float(-math.inf if lo is None else lo),
+                                                     to_value=float(math.inf if hi is None else hi), step=0.0)]
+    elif kind == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
+        d.integer_range = [IntegerRange(from_value=int(-(2**63) if lo is None else lo),
+                                        to_value=int(2**63 - 1 if hi is None else hi), step=1)]
+    return d
+
+
+def parameter_table() -> dict[str, tuple[Any, ParameterDescriptor]]:
+    """Every node parameter, physics and node's own: name -> (default, descriptor)."""
+    defaults = PanelConfig()
+    table: dict[str, tuple[Any, ParameterDescriptor]] = {}
+    for key, spec in SCHEMA.items():
+        default = getattr(defaults, spec.field)
+        table[key] = (default, _descriptor(default, f"physics ({spec.rule})", True, spec.lo, spec.hi))
+    for name, p in NODE_PARAMS.items():
+        table[name] = (p.default, _descriptor(p.default, p.description, not p.live, p.lo, p.hi))
+    return table
