@@ -2,7 +2,7 @@
 
     python benchmarks/run.py [--json] [--node]
 
-One core, nonlinear `full` variant, dt = 1/2048 s, near the flutter speed (1.05 U_f).
+One core, nonlinear `full` variant (and `exact`, keys exact_*), dt = 1/2048 s, near the flutter speed (1.05 U_f).
 `turbulence_rom_realtime_factor`: the same ROM march in the configured tunnel turbulence (issue 9: at most 30 %
 slower, `turbulence_cost_fraction` <= 0.3).
 --node adds the live node's 60 s real-time measurement (benchmarks/node_realtime.py), its start-up time,
@@ -105,6 +105,12 @@ def main() -> int:
     out["turbulence_cost_fraction"] = max(off) / max(on) - 1.0
     out["full_realtime_factor"] = realtime_factor(Stepper(cfg, "full", "full", model=model), u, 30.0)
     out["rom_single_step_realtime_factor"] = single_step_realtime_factor(Stepper(cfg, "full", "rom", model=model), u)
+    # the exact (elastica) structure: at 1.05 U_f (the same operating point) and deep in the LCO (2.5 U_f,
+    # tip angles above a radian: more Newton iterations)
+    out["exact_rom_realtime_factor"] = realtime_factor(Stepper(cfg, "exact", "rom", model=model), u, 60.0)
+    out["exact_rom_2p5Uf_realtime_factor"] = realtime_factor(Stepper(cfg, "exact", "rom", model=model),
+                                                             2.5 / 1.05 * u, 30.0)
+    out["exact_full_realtime_factor"] = realtime_factor(Stepper(cfg, "exact", "full", model=model), u, 20.0)
     t0 = time.perf_counter()
     lco_sweep(cfg, np.linspace(12.0, 32.0, 21) * fp.speed_mps / 12.5, 30.0, "full", model=model)
     out["fig8_sweep_21x30s_wall_s"] = time.perf_counter() - t0

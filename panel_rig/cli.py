@@ -299,6 +299,29 @@ def cmd_gust(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_static(args: argparse.Namespace) -> int:
+    from panel_rig.model.elastica import static_tip_load
+
+    cfg = _config(args)
+    D, L = cfg.bending_stiffness_nm, cfg.panel_length_m
+    alpha = args.tip_load_parameter if args.tip_load_parameter is not None else args.tip_force * L**2 / D
+    if not np.isfinite(alpha):
+        raise UsageError(f"the tip load must be finite, got {alpha}")
+    try:
+        r = static_tip_load(float(alpha), args.variant, n_modes=cfg.n_modes)
+    except RuntimeError as exc:
+        raise UsageError(str(exc)) from None
+    payload = r.as_dict()
+    payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes)
+    _emit(args, payload, lambda: (
+        f"dead transverse tip load, variant {r.variant}, {cfg.n_modes} modes\n"
+        f"P L^2/D          {r.alpha:10.5f}   (P = {alpha * D / L**2:.5g} N/m)\n"
+        f"tip w/L          {r.tip_w_over_L:10.5f}\n"
+        f"tip u/L          {r.tip_u_over_L:10.5f}   (axial shortening)\n"
+        f"tip angle, rad   {r.tip_angle_rad:10.5f}"))
+    return 0
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -556,6 +579,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wake-chords", type=float, metavar="W",
                    help="wake length in chords for this check (default 60, as the Theodorsen check)")
     p.set_defaults(func=cmd_gust)
+
+    from panel_rig.model.elastica import STATIC_VARIANTS
+
+    p = sub.add_parser("static", help="static deflection under a dead transverse tip load (the elastica)")
+    _common(p)
+    load = p.add_mutually_exclusive_group(required=True)
+    load.add_argument("--tip-load-parameter", type=float, metavar="ALPHA", help="P L^2 / D (D: the model's "
+                      "bending stiffness per unit span)")
+    load.add_argument("--tip-force", type=float, metavar="N_PER_M", help="P, N per metre span")
+    p.add_argument("--variant", choices=STATIC_VARIANTS, default="exact",
+                   help="structure (statics have no inertia: full and stiffness agree)")
+    p.set_defaults(func=cmd_static)
 
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)

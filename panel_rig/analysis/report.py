@@ -34,8 +34,10 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
     model = AeroelasticModel(cfg)
     rows: list[dict] = []
 
-    def add(id_, what, paper, ours, ok, note=""):
-        rows.append({"id": id_, "what": what, "paper": paper, "ours": ours, "verdict": _verdict(ok), "note": note})
+    def add(id_, what, paper, ours, ok, note="", exact=None):
+        """ours: the paper's (cubic) model; exact: the same run with the exact (elastica) structure."""
+        rows.append({"id": id_, "what": what, "paper": paper, "ours": ours, "verdict": _verdict(ok), "note": note,
+                     "exact": exact})
 
     f = build_structure(cfg).natural_frequencies_hz
     paper_f = np.array([4.13, 25.85, 71.67])
@@ -92,14 +94,19 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
     c1, tip1, st1 = run_lco(cfg, u_c, 40.0, "full", model=model, keep=True)
     c1p, tip1p, _ = run_lco(cfg, u_c, 40.0, "full", scheme="paper", model=model, keep=True)
     c3, tip3, st3 = run_lco(cfg, u_c, 30.0, "stiffness", model=model, keep=True)
+    c1x, tip1x, st1x = run_lco(cfg, u_c, 40.0, "exact", model=model, keep=True)
+
+    def lco_cell(r):
+        return "diverged" if r.diverged else [round(r.rms_tip_w_over_L, 4), round(r.dominant_frequency_hz, 2)]
+
     add("C1", f"LCO full nonlinear at U/U_f = 13.5/12.5 (U = {u_c:.2f} m/s): RMS, Hz", [0.054, 22.0],
         {"implicit": [round(c1.rms_tip_w_over_L, 4), round(c1.dominant_frequency_hz, 2)],
          "paper scheme": [round(c1p.rms_tip_w_over_L, 4), round(c1p.dominant_frequency_hz, 2)]},
-        False, "not reproduced by a consistent discretisation: docs/validation.md, item 3")
+        False, "not reproduced by a consistent discretisation: docs/validation.md, item 3", exact=lco_cell(c1x))
     add("C3", f"LCO stiffness only at U = {u_c:.2f} m/s: RMS, Hz", [0.093, 22.55],
         [round(c3.rms_tip_w_over_L, 4), round(c3.dominant_frequency_hz, 2)],
         abs(c3.rms_tip_w_over_L / 0.093 - 1) < 0.25 and abs(c3.dominant_frequency_hz / 22.55 - 1) < 0.05,
-        "tolerance 25 % RMS, 5 % frequency")
+        "tolerance 25 % RMS, 5 % frequency", exact="n/a (the exact structure has no stiffness-only form)")
     t1 = np.arange(tip1.size) * dt
     plots.plot_series(out / "fig4a_lco_time.png", t1, [(tip1, "full, implicit")], "time, s", "tip w/L",
                       f"Fig. 4(a): U = {u_c:.2f} m/s")
@@ -111,26 +118,35 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
                       "time, s", "tip w/L", f"Fig. 6: U = {u_c:.2f} m/s, stiffness nonlinearity only")
     x = np.linspace(0, 1, 81)
     shapes = {"full": rms_shape(st1, u_c, 2.0, x) if not c1.diverged else None,
-              "stiffness": rms_shape(st3, u_c, 2.0, x)}
+              "stiffness": rms_shape(st3, u_c, 2.0, x),
+              "exact": rms_shape(st1x, u_c, 2.0, x) if not c1x.diverged else None}
     nodes = {k: node_of(x, v) for k, v in shapes.items() if v is not None}
     main = nodes.get("full")
     add("C2", "LCO RMS shape: node x/L (interior local minimum of RMS w/L)", 0.8,
-        {k: (None if v is None else round(v, 3)) for k, v in nodes.items()},
-        None if main is None else abs(main - 0.8) <= 0.1, "tolerance 0.1 in x/L, full nonlinear LCO")
+        {k: (None if v is None else round(v, 3)) for k, v in nodes.items() if k != "exact"},
+        None if main is None else abs(main - 0.8) <= 0.1, "tolerance 0.1 in x/L, full nonlinear LCO",
+        exact=None if nodes.get("exact") is None else round(nodes["exact"], 3))
     plots.plot_series(out / "fig5_lco_shape.png", x, [(v, k) for k, v in shapes.items() if v is not None], "x/L",
                       "RMS of w/L", f"Fig. 5: LCO RMS shape, U = {u_c:.2f} m/s")
     u4 = 31.0 * ratio
     c4, tip4, _ = run_lco(cfg, u4, 10.0, "full", model=model, keep=True)
-    add("C4", f"LCO full at U/U_f = 31/12.5 (U = {u4:.2f} m/s): peak w/L, Hz", [0.8, 16.65],
-        "diverged (|w/L| > bound)" if c4.diverged else [round(c4.peak_tip_w_over_L, 3),
-                                                        round(c4.dominant_frequency_hz, 2)],
-        None if c4.diverged else abs(c4.dominant_frequency_hz / 16.65 - 1) < 0.05, "")
-    plots.plot_series(out / "fig7_lco_31.png", np.arange(tip4.size) * dt, [(tip4, "full")], "time, s", "tip w/L",
-                      f"Fig. 7: U = {u4:.2f} m/s" + (" (diverged)" if c4.diverged else ""))
+    c4x, tip4x, _ = run_lco(cfg, u4, 10.0, "exact", model=model, keep=True)
+
+    def c4_cell(r):
+        return "diverged (|w/L| > bound)" if r.diverged else [round(r.peak_tip_w_over_L, 3),
+                                                              round(r.dominant_frequency_hz, 2)]
+
+    add("C4", f"LCO full at U/U_f = 31/12.5 (U = {u4:.2f} m/s): peak w/L, Hz", [0.8, 16.65], c4_cell(c4),
+        None if c4.diverged else abs(c4.dominant_frequency_hz / 16.65 - 1) < 0.05, "", exact=c4_cell(c4x))
+    tip4_padded = np.full(tip4x.size, np.nan)
+    tip4_padded[: min(tip4.size, tip4x.size)] = tip4[: tip4x.size]
+    plots.plot_series(out / "fig7_lco_31.png", np.arange(tip4x.size) * dt,
+                      [(tip4x, "exact"), (tip4_padded, "full (cubic)" + (", diverged" if c4.diverged else ""))],
+                      "time, s", "tip w/L", f"Fig. 7: U = {u4:.2f} m/s")
 
     log("LCO sweep (Fig. 8)")
     us = np.linspace(12.0, 32.0, 21) * ratio
-    sweep = {v: lco_sweep(cfg, us, sweep_s, v, model=model) for v in ("full", "stiffness")}
+    sweep = {v: lco_sweep(cfg, us, sweep_s, v, model=model) for v in ("full", "stiffness", "exact")}
     for v, res in sweep.items():
         plots.plot_series(out / f"fig8_sweep_{v}.png", us, [
             (np.array([r.rms_tip_w_over_L for r in res]), f"{v}: RMS tip w/L"),
@@ -144,7 +160,10 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
          "stiffness_rms": [None if r.diverged else round(r.rms_tip_w_over_L, 4) for r in sweep["stiffness"]],
          "stiffness_hz": [None if r.diverged else round(r.dominant_frequency_hz, 2) for r in sweep["stiffness"]]},
         None, f"{len(sweep['full']) - len(ok_full)} of {len(us)} full-nonlinear runs diverge (|w/L| > "
-              f"{cfg.max_tip_w_over_L})")
+              f"{cfg.max_tip_w_over_L})",
+        exact={"rms": [None if r.diverged else round(r.rms_tip_w_over_L, 4) for r in sweep["exact"]],
+               "hz": [None if r.diverged else round(r.dominant_frequency_hz, 2) for r in sweep["exact"]],
+               "diverged": sum(r.diverged for r in sweep["exact"])})
     t0 = time.perf_counter()
     run_lco(cfg, u_c, 10.0, "full", model=model)
     rt = 10.0 / (time.perf_counter() - t0)
@@ -167,9 +186,12 @@ def node_of(x: np.ndarray, rms_w: np.ndarray) -> float | None:
 def markdown(rows: list[dict], wall_s: float) -> str:
     lines = ["# panel_rig: Tang & Dowell (2002) reproduced", "",
              "Paper value beside ours for every id of `published_results.md`; see docs/validation.md.", "",
-             "| id | what | paper | ours | verdict | note |", "|---|---|---|---|---|---|"]
+             "`ours` is the paper's (cubic) structure; `exact` the same run with the geometrically exact (elastica) "
+             "structure (docs/validation.md, section 5).", "",
+             "| id | what | paper | ours | verdict | note | exact |", "|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['id']} | {r['what']} | {r['paper']} | {r['ours']} | {r['verdict']} | {r['note']} |")
-    lines += ["", f"Figures: fig2a/b (forced), fig3 (flutter), fig4a/b (LCO), fig5 (shape), fig6, fig7, fig8. "
-                  f"Wall time {wall_s:.0f} s."]
+        ex = "" if r.get("exact") is None else r["exact"]
+        lines.append(f"| {r['id']} | {r['what']} | {r['paper']} | {r['ours']} | {r['verdict']} | {r['note']} | {ex} |")
+    lines += ["", f"Figures: fig2a/b (forced), fig3 (flutter), fig4a/b (LCO), fig5 (shape), fig6, fig7 (exact), "
+                  f"fig8 (full, stiffness, exact). Wall time {wall_s:.0f} s."]
     return "\n".join(lines) + "\n"

@@ -22,6 +22,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from panel_rig.model.kernel_exact import exact_eval, exact_tip
+
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
@@ -71,6 +73,17 @@ class KernelModel(NamedTuple):
     Qg: np.ndarray  # (n, km)
     Qgd: np.ndarray  # (n, km)
     Gg: np.ndarray  # (r, km)
+    # exact (elastica) structure: theta = q . psi at Gauss points (kernel_exact.py, elastica.py); when ``exact``
+    # the cubic terms are off (use_k = use_m = False), M(q), h(q, v) and the dead tip force L B(1; q) replace
+    # them and the reported tip is the exact w(1)/L = int sin(theta). ``ex_run``/``ex_w_elem``: running-integral
+    # matrix and weights of one of the ``ex_n_elem`` elements; ``ex_length``: L (m).
+    exact: bool = False
+    ex_psi: np.ndarray = np.zeros((0, 0))
+    ex_w: np.ndarray = np.zeros(0)
+    ex_run: np.ndarray = np.zeros((0, 0))
+    ex_w_elem: np.ndarray = np.zeros(0)
+    ex_n_elem: int = 0
+    ex_length: float = 0.0
 
 
 @njit(cache=True)
@@ -175,6 +188,13 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     blk_off, blk_len, lam_a, lam_b = km.blk_off, km.blk_len, km.lam_a, km.lam_b
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
+    exact, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem = km.exact, km.ex_psi, km.ex_w, km.ex_run, km.ex_w_elem, km.ex_n_elem
+    ex_work = np.zeros((3 * q.shape[0] + 7, ex_psi.shape[1]))
+    ex_Jv = np.zeros((q.shape[0], q.shape[0]))
+    ex_h = np.zeros(q.shape[0])
+    ex_b = np.zeros(q.shape[0])
+    q_new = np.zeros(q.shape[0])
+    ex_acc = np.zeros(q.shape[0])  # exact: last step's acceleration, the Newton predictor
     n = q.shape[0]
     r = xi.shape[0]
     h = 0.5 * dt
@@ -238,16 +258,31 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
             acc = 0.0
             for k in range(r):
                 acc += Qxi[i, k] * (xi[k] + c0[k])
-            xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
+            if exact:  # the dead tip force is state dependent: in the residual
+                xi_part[i] = 0.5 * U * acc
+            else:
+                xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
             if ng > 0:
                 xi_part[i] += fg[i]
+        big_prev = 0.0
         for i in range(n):
             x[i] = v[i]
+            if exact:
+                x[i] += dt * ex_acc[i]
         for it in range(MAX_ITER):
             for i in range(n):
                 vm[i] = 0.5 * (x[i] + v[i])
                 qm[i] = q[i] + h * vm[i]
             Mt[:, :] = M0
+            if exact:  # M0 holds m I + Ma: swap m I for M(q*) at the midpoint; h(q*, v*) and B(1; q*);
+                # dh/dv for the Newton matrix at the first iteration of the step only
+                if it == 0:
+                    ex_Jv[:, :] = 0.0
+                for i in range(n):
+                    Mt[i, i] -= m_scale
+                    ex_h[i] = 0.0
+                exact_eval(qm, vm, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem, m_scale, it == 0, Mt, ex_h, ex_b,
+                           ex_Jv, ex_work)
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)
             for i in range(n):
@@ -256,12 +291,18 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                     acc += Mt[i, j] * (x[j] - v[j]) / dt + Cu[i, j] * vm[j] + Ku[i, j] * qm[j] + QW[i, j] * x[j]
                     if mass_mode == MASS_LITERAL:  # [D2 + dM] z^{t+1} + D1 z^t: dM multiplies the new state only
                         acc += (Mt[i, j] - M0[i, j]) * v[j] / dt
+                if exact:
+                    acc += ex_h[i] - F_seq[step] * km.ex_length * ex_b[i]
                 res[i] = acc
             if use_k or use_m:
                 _nl_force(qm, vm, K_nl, P_nl, k_scale, m_scale, use_k, use_m, res)
             for i in range(n):
                 for j in range(n):
                     J[i, j] = Mt[i, j] / dt + J_lin[i, j]
+            if exact:  # the velocity-quadratic inertia dominates the Newton error: dh/dx = (1/2) dh/dv
+                for i in range(n):
+                    for j in range(n):
+                        J[i, j] += 0.5 * ex_Jv[i, j]
             _solve_inplace(J, res)
             scale = 1e-12
             big = 0.0
@@ -271,11 +312,17 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                 big = max(big, abs(res[i]))
             if big <= tol * scale:
                 break
+            # exact: linear convergence with ratio r = big / big_prev leaves an error of about big r / (1 - r)
+            # after this update; stop when that is below the tolerance (saves the confirming evaluation)
+            if exact and it > 0 and big < 0.5 * big_prev and big * big <= tol * scale * (big_prev - big):
+                break
+            big_prev = big
         tip = 0.0
         finite = True
         for j in range(n):
             qn = q[j] + h * (x[j] + v[j])
             tip += tip_vec[j] * qn
+            q_new[j] = qn
             finite = finite and np.isfinite(qn) and np.isfinite(x[j])
         for k in range(r):
             acc = c0[k]
@@ -283,12 +330,16 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                 acc -= W[k, j] * x[j]
             tmp_r[k] = acc
             finite = finite and np.isfinite(acc)
+        if exact and finite:
+            tip = exact_tip(q_new, ex_psi, ex_w)
         if not finite:
             return NON_FINITE, step
         if abs(tip) > tip_bound:
             return OVER_BOUND, step
         for j in range(n):
             q[j] += h * (x[j] + v[j])
+            if exact:
+                ex_acc[j] = (x[j] - v[j]) / dt
             v[j] = x[j]
         for k in range(r):
             xi[k] = tmp_r[k]

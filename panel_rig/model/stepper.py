@@ -15,7 +15,10 @@ import numpy as np
 from panel_rig.config import PanelConfig
 from panel_rig.model import kernel
 from panel_rig.model.aeroelastic import AeroelasticModel
-from panel_rig.model.options import AERO_MODELS, SCHEMES, VARIANTS
+from panel_rig.model.elastica import exact_kinematics
+from panel_rig.model.elastica import shape as exact_shape
+from panel_rig.model.kernel_exact import exact_tip
+from panel_rig.model.options import AERO_MODELS, EXACT_VARIANT, SCHEMES, VARIANTS
 from panel_rig.model.structure import mode_shapes
 
 MASS_MODES = dict(zip(SCHEMES, (kernel.MASS_MIDPOINT, kernel.MASS_AT_START, kernel.MASS_LITERAL)))
@@ -113,6 +116,8 @@ class Stepper:
             raise ValueError(f"aero must be one of {AERO_MODELS}, got {aero!r}")
         if scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}")
+        if variant == EXACT_VARIANT and scheme != "implicit":
+            raise ValueError("the exact structure runs the implicit (midpoint) scheme only")
         self.cfg = cfg
         self.model = model if model is not None else AeroelasticModel(cfg)
         self.variant, self.aero, self.scheme = variant, aero, scheme
@@ -122,12 +127,18 @@ class Stepper:
         use_k, use_m = VARIANTS[variant]
         self._tip_vec = mode_shapes(s.n_modes, np.array([1.0]))[:, 0]
         m = self.mats
+        self.exact = variant == EXACT_VARIANT
+        kin = exact_kinematics(s.n_modes) if self.exact else None
+        self._kin = kin
         self.kernel_model = kernel.KernelModel(
             self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b,
             s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg, use_k, use_m, MASS_MODES[scheme],
             cfg.panel_length_m * self._tip_vec,  # generalised force per N/m at the trailing edge
             self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
-            m.Qg, m.Qgd, m.Gg)  # gust input
+            m.Qg, m.Qgd, m.Gg,  # gust input
+            # exact (elastica) structure
+            *((True, kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem, cfg.panel_length_m)
+              if self.exact else ()))
         self._gust_proj = kernel.gust_projection(self.kernel_model)  # (r + 2n, km): what the kernel needs of w_g
         kernel.project_gust(np.zeros((1, self._gust_proj.shape[1])), self._gust_proj,
                             np.zeros((1, self._gust_proj.shape[0])))  # compile / load now
@@ -187,12 +198,25 @@ class Stepper:
 
     @property
     def tip_w_over_L(self) -> float:
-        """Trailing-edge deflection w/L = sum q_i phi_i(1)."""
+        """Trailing-edge deflection w/L = sum q_i phi_i(1) (exact: int_0^1 sin theta, so |w/L| <= 1)."""
+        if self.exact:
+            return float(exact_tip(self.q, self._kin.psi, self._kin.quad.w))
         return float(self._tip_vec @ self.q)
 
     def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
-        """w/L along the panel at x/L."""
+        """w/L along the panel at x/L (exact: at arc length s = x/L of the undeformed panel; the point's
+        chordwise position is then :meth:`shape_xw_over_L`)."""
+        if self.exact:
+            return exact_shape(self.q, np.asarray(x_over_L, dtype=float))[1]
         return self.q @ mode_shapes(self.n_modes, np.asarray(x_over_L, dtype=float))
+
+    def shape_xw_over_L(self, s_over_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x/L, w/L) of the material points at arc length s/L (cubic variants: x = s - 1/2 int w'^2 is not
+        tracked by the kernel, so x = s is returned for them)."""
+        s_ = np.asarray(s_over_L, dtype=float)
+        if self.exact:
+            return exact_shape(self.q, s_)
+        return s_.copy(), self.shape_w_over_L(s_)
 
     @property
     def aero_force_npm(self) -> np.ndarray:

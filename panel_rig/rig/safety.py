@@ -5,10 +5,30 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+#: Distance (m) from the panel's undeformed plane to the nearer tunnel wall. The paper gives no test-section
+#: size; 0.25 m is a panel on the centreline of a ~0.5 m-tall test section (set it to your tunnel).
+DEFAULT_WALL_CLEARANCE_M = 0.25
+
+
+def tip_limit_from_wall_clearance(wall_clearance_m: float, panel_length_m: float) -> float:
+    """|tip w/L| at which the trailing edge reaches the tunnel wall: clearance / L, and at most 1 (an
+    inextensible panel of length L cannot put its tip farther than L from its plane; with clearance >= L the
+    wall cannot be hit and the limit is the geometric one)."""
+    if not (math.isfinite(wall_clearance_m) and wall_clearance_m > 0 and math.isfinite(panel_length_m)
+            and panel_length_m > 0):
+        raise ValueError(f"wall clearance and panel length must be finite and > 0, got {wall_clearance_m!r}, "
+                         f"{panel_length_m!r}")
+    return min(1.0, wall_clearance_m / panel_length_m)
+
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run."""
+    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run.
+
+    A tip limit with a physical basis is the trailing edge touching the tunnel wall: :meth:`for_panel`
+    (:func:`tip_limit_from_wall_clearance`; 0.926 for the paper's panel at the default clearance). It suits the
+    ``exact`` structure (|w/L| <= 1 by construction); the field default below stays above L for the cubic
+    variants, whose LCO peaks exceed L just past flutter."""
 
     max_airspeed_mps: float = 30.0
     # |w/L| at the tip that aborts: above the largest LCO peaks of the cubic full model just past flutter (~1.2),
@@ -17,6 +37,12 @@ class SafetyLimits:
     max_force_npm: float = 10.0
     max_amplitude_npm: float = 10.0
     max_frequency_hz: float = 200.0
+
+    @classmethod
+    def for_panel(cls, panel_length_m: float, wall_clearance_m: float = DEFAULT_WALL_CLEARANCE_M,
+                  **others: float) -> "SafetyLimits":
+        """Limits whose tip limit is the wall contact of a panel of this length at this clearance."""
+        return cls(max_tip_w_over_L=tip_limit_from_wall_clearance(wall_clearance_m, panel_length_m), **others)
 
     def __post_init__(self) -> None:
         for f in fields(self):
