@@ -20,6 +20,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
+#: amplitudes (its tip cannot pass its own length, and it does not diverge past ~1.2 U_f as the cubic ones do)
+DEMO_VARIANT = "exact"
 NODE_STOP_TIMEOUT_S = 20.0
 
 
@@ -76,7 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 str(ROOT / "config" / "tang_dowell_2002.yaml"), "--ros-args", "-r", "__ns:=/rig",
                 "--params-file", str(ROOT / "config" / "rig.yaml"),
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
-                "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}"]
+                "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}",
+                "-p", f"model.variant:={DEMO_VARIANT}"]
     with open(node_log, "w") as log:
         node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:

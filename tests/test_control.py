@@ -240,7 +240,7 @@ def test_prediction_agrees_with_the_emulated_onset_within_5_percent(cfg, model, 
     rates = {}
     for factor in (0.95, 1.05):
         rig = Rig(Stepper(cfg, variant="linear", model=model), cfg.panel_length_m,
-                  limits=SafetyLimits(max_tip_w_over_L=1.9))
+                  limits=SafetyLimits(max_tip_w_over_L=1.9, wall_clearance_m=10.0))
         run = run_closed_loop(rig, DiscreteLaw(design.law), factor * pred, 5.0, age, rate)
         assert run.state == "running"
         late = run.time_s > 1.0

@@ -195,7 +195,8 @@ def fast_node(ros_env: dict[str, str], client: Client, tmp_path_factory: pytest.
             node_cmd("fast:=true", f"model.variant:={LCO_VARIANT}", f"fast_max_realtime_factor:={FAST_CAP}",
                      f"publish_rate_hz:={PUBLISH_HZ}",
                      "diagnostics_rate_hz:=10.0",
-                     f"tunnel.time_constant_s:={TAU_S}", "safety.max_airspeed_mps:=25.0", f"safety.max_tip_w_over_L:={LCO_MAX_TIP}"),
+                     f"tunnel.time_constant_s:={TAU_S}", "safety.max_airspeed_mps:=25.0", f"safety.max_tip_w_over_L:={LCO_MAX_TIP}",
+                     f"safety.wall_clearance_m:={LCO_WALL_M}"),
             env=ros_env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
         )
     try:
@@ -455,14 +456,16 @@ LCO_CANDIDATES_MPS = (12.0, 13.0, 14.0, 15.0, 16.0)
 LCO_SETTLE_S = 15.0
 LCO_WINDOW_S = 5.0
 LCO_MAX_TIP = 1.9  # the fast node's safety.max_tip_w_over_L (the model's own bound is 2.0)
+LCO_WALL_M = 10.0  # and its wall clearance: no wall in the way of the cubic model's large LCO
 
 
 def offline_lco(cfg: Any, airspeed_mps: float) -> tuple[bool, float, float]:
     """(steady LCO?, RMS w/L, frequency Hz) of the rig + Stepper offline, sampled like the topic."""
     from panel_rig.model.stepper import Stepper
 
-    rig = Rig(Stepper(cfg, variant=LCO_VARIANT), cfg.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=LCO_MAX_TIP),
-              tunnel=TunnelSettings(TAU_S))
+    limits = SafetyLimits(max_tip_w_over_L=LCO_MAX_TIP, wall_clearance_m=LCO_WALL_M)
+    rig = Rig(Stepper(cfg, variant=LCO_VARIANT), cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(TAU_S),
+              turbulence=None, sensor=None)
     rig.command_force(0.05)
     rig.command_airspeed(airspeed_mps)
     rig.advance_to(0.05)

@@ -12,8 +12,9 @@ SAMPLE_STEPS = 16  # 128 samples per simulated second
 
 
 def test_tip_limit_is_the_wall_contact():
-    assert SafetyLimits.for_panel(0.27).max_tip_w_over_L == pytest.approx(0.25 / 0.27)
-    assert SafetyLimits.for_panel(0.5, wall_clearance_m=0.1).max_tip_w_over_L == pytest.approx(0.2)
+    assert SafetyLimits().tip_limit(0.27) == pytest.approx(0.25 / 0.27)
+    assert SafetyLimits(wall_clearance_m=0.1).tip_limit(0.5) == pytest.approx(0.2)
+    assert SafetyLimits(wall_clearance_m=1.0).tip_limit(0.27) == 1.0  # the panel's own length first
     assert tip_limit_from_wall_clearance(1.0, 0.27) == 1.0  # an inextensible panel cannot reach farther than L
     with pytest.raises(ValueError):
         tip_limit_from_wall_clearance(0.0, 0.27)
@@ -24,7 +25,7 @@ def test_exact_rig_climbs_a_staircase_to_25_mps_without_abort(model):
     burst at 11 m/s); the panel flutters, stays within the walls, and the rig never aborts."""
     cfg = load_config()
     rig = Rig(Stepper(cfg, variant="exact", model=model), cfg.panel_length_m,
-              limits=SafetyLimits.for_panel(cfg.panel_length_m))
+              limits=SafetyLimits())
     dwell = 5.0
     per_step = int(round(dwell / rig.dt_s / SAMPLE_STEPS))
     tips, rms_at = [], {}
@@ -41,5 +42,5 @@ def test_exact_rig_climbs_a_staircase_to_25_mps_without_abort(model):
         assert rig.state == RUNNING, (u, rig.abort_reason)
     tips = np.concatenate(tips)
     assert rig.abort_count == 0
-    assert np.max(np.abs(tips)) < rig.limits.max_tip_w_over_L < 1.0
+    assert np.max(np.abs(tips)) < rig.limits.tip_limit(cfg.panel_length_m) < 1.0  # inside the walls
     assert rms_at[8.0] < 1e-6 and rms_at[25.0] > 0.3  # at rest below flutter, a large LCO at 25 m/s

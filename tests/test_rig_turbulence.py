@@ -24,7 +24,7 @@ def flutter():
 
 def _rig(cfg, model, airspeed, variant="stiffness"):
     st = Stepper(cfg, variant=variant, model=model)
-    rig = Rig(st, cfg.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=1.5), tunnel=TunnelSettings(0.0),
+    rig = Rig(st, cfg.panel_length_m, limits=SafetyLimits(max_tip_w_over_L=1.5, wall_clearance_m=10.0), tunnel=TunnelSettings(0.0),
               **tunnel_extras(cfg, st))
     assert rig.command_airspeed(airspeed).accepted
     return rig

@@ -99,7 +99,7 @@ class Rig:
     """A wind tunnel around one stepper, advanced in whole physics steps of ``stepper.dt_s``.
 
     Bad commands are refused (counted, with a reason) and the rig carries on. A tip beyond
-    ``limits.max_tip_w_over_L`` or a diverging model aborts: set-point 0, shaker off, commands refused
+    ``limits.tip_limit(L)`` (wall contact) or a diverging model aborts: set-point 0, shaker off, commands refused
     until :meth:`reset`. A diverged model is reset to rest so no NaN ever leaves the rig.
     """
 
@@ -178,7 +178,7 @@ class Rig:
             self.abort(f"model error at U = {airspeed:.3g} m/s: {type(exc).__name__}: {exc}")
         else:
             if self.state == RUNNING:
-                reason = check_tip(tip, self.limits)
+                reason = check_tip(tip, self.limits.tip_limit(self.panel_length_m))
                 if reason:
                     self.abort(reason)
         self.actuator.step()
@@ -254,7 +254,7 @@ class Rig:
         n = int(ends[-1])
         u0, phase0, control0 = self.actuator.airspeed_mps, self.shaker.phase_rad, self.control.snapshot()
         u_in, force, u_out, shaken = self._inputs(n)
-        bound = self.limits.max_tip_w_over_L if self.state == RUNNING else math.inf
+        bound = self.limits.tip_limit(self.panel_length_m) if self.state == RUNNING else math.inf
         u_model, gust, snap = np.array(u_in), None, None
         if self.turbulence is not None:
             snap = self.turbulence.snapshot()
@@ -399,7 +399,7 @@ class Rig:
                              f"{act.setpoint_mps:g} -> {self.limits.max_airspeed_mps:g} m/s, tunnel ramping down")
             act.setpoint_mps = self.limits.max_airspeed_mps
         if self.state == RUNNING:
-            reason = check_tip(float(self.stepper.tip_w_over_L), self.limits)
+            reason = check_tip(float(self.stepper.tip_w_over_L), self.limits.tip_limit(self.panel_length_m))
             if reason:
                 self.abort(f"tip limit lowered below the present tip: {reason}")
 

@@ -30,7 +30,8 @@ def run_tunnel(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant
     from panel_rig.model.stepper import Stepper
 
     st = Stepper(cfg, variant=variant, aero=aero, scheme=scheme, model=model)
-    limits = SafetyLimits(max_airspeed_mps=max(airspeed_mps, 1.0) * 2, max_tip_w_over_L=cfg.max_tip_w_over_L)
+    limits = SafetyLimits(max_airspeed_mps=max(airspeed_mps, 1.0) * 2, max_tip_w_over_L=cfg.max_tip_w_over_L,
+                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)  # offline: the model's bound
     rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
     result = rig.command_airspeed(airspeed_mps)
     if not result.accepted:

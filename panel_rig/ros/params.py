@@ -86,8 +86,12 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                        "airspeed limit, m/s (lowering it below the set-point ramps the tunnel down)",
                                        0.0, 1000.0, lo_open=True),
     "safety.max_tip_w_over_L": _number(_LIMITS.max_tip_w_over_L, True,
-                                       "tip |w/L| that aborts the run (also when lowered below the present tip)",
+                                       "tip |w/L| that aborts the run (1: the panel's own length; the wall may "
+                                       "come first; also when lowered below the present tip)",
                                        0.0, 100.0, lo_open=True),
+    "safety.wall_clearance_m": _number(_LIMITS.wall_clearance_m, True,
+                                       "distance from the panel's plane to the nearer tunnel wall, m: the tip "
+                                       "reaching it aborts the run", 0.0, 100.0, lo_open=True),
     "shaker.max_force_npm": _number(_LIMITS.max_force_npm, True, "held force limit +-, N/m", 0.0, 1e6, lo_open=True),
     "shaker.max_amplitude_npm": _number(_LIMITS.max_amplitude_npm, True, "sine amplitude limit, N/m", 0.0, 1e6,
                                         lo_open=True),
@@ -115,6 +119,7 @@ NODE_PARAMS: dict[str, NodeParam] = {
 LIMIT_FIELDS = {
     "safety.max_airspeed_mps": "max_airspeed_mps",
     "safety.max_tip_w_over_L": "max_tip_w_over_L",
+    "safety.wall_clearance_m": "wall_clearance_m",
     "shaker.max_force_npm": "max_force_npm",
     "shaker.max_amplitude_npm": "max_amplitude_npm",
     "shaker.max_frequency_hz": "max_frequency_hz",
