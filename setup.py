@@ -21,7 +21,7 @@ setup(
     extras_require={
         # ROS 2 Jazzy from PyPI, for machines without a ROS install.
         "ros": ["ros-rclpy==7.1.6", "ros-common-interfaces==5.3.6", "ros-rmw-fastrtps-cpp==8.4.3"],
-        "record": ["mcap>=1.2", "mcap-ros2-support>=0.5"],
+        "record": ["mcap>=1.5.0", "mcap-ros2-support>=0.5"],
         "viz": ["rerun-sdk==0.41.0"],
         "test": ["pytest>=8", "ruff>=0.6", "rosbags>=0.10", "catkin_pkg>=1.0",
                  "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information"],
@@ -39,6 +39,7 @@ setup(
             "panel-rig = panel_rig.cli:main",
             "rig_node = panel_rig.ros.node:main",
             "rig_operator = panel_rig.ros.operator:main",
+            "rig_controller = panel_rig.ros.controller:main",
         ],
     },
 )

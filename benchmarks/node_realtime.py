@@ -30,6 +30,7 @@ def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | No
             Parameter("fast", value=fast),
             Parameter("tunnel.time_constant_s", value=0.2),
             Parameter("safety.max_tip_w_over_L", value=1.9),
+            Parameter("safety.wall_clearance_m", value=10.0),
         ] + ([] if sinks_dir is None else [
             Parameter("record", value=True),
             Parameter("bag_dir", value=os.path.join(sinks_dir, "bags")),

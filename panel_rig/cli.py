@@ -63,6 +63,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     rom_modes = args.rom_modes if args.rom_modes is not None else cfg.rom_modes
     if rom_modes < 1:
         raise UsageError("--rom-modes must be >= 1")
+    if args.control:
+        return _flutter_control(args, cfg, model, rom_modes)
     kw = dict(aero=args.aero, rom_modes=rom_modes if args.aero == "rom" else None,
               formulation=args.formulation)
     fp = find_flutter(model, **kw)
@@ -97,6 +99,77 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom_modes: int) -> int:
+    """``flutter --control``: open- and closed-loop flutter speed of the linear ROM model (continuous time) with
+    the reference law, the control actuator's bandwidth and the loop delay (given, or from a measured command
+    age); optional damping plot."""
+    from panel_rig.analysis.control import (
+        DESIGN_DELAY_S,
+        LoopModel,
+        closed_loop_flutter,
+        damping_curves,
+        design_law,
+        effective_delay,
+        noise_force_rms,
+    )
+    from panel_rig.rig.control import ControlSettings
+
+    if args.delay_ms is not None and args.command_age_ms is not None:
+        raise UsageError("give --delay-ms or --command-age-ms, not both")
+    for name in ("delay_ms", "command_age_ms"):
+        v = getattr(args, name)
+        if v is not None and not (np.isfinite(v) and 0 <= v <= 100):
+            raise UsageError(f"--{name.replace('_', '-')} must be in [0, 100] ms, got {v}")
+    bw = args.actuator_bandwidth_hz if args.actuator_bandwidth_hz is not None else ControlSettings().bandwidth_hz
+    if not (np.isfinite(bw) and 0 < bw <= 1e4):
+        raise UsageError(f"--actuator-bandwidth-hz must be in (0, 1e4], got {bw}")
+    if args.command_age_ms is not None:
+        delay_s, source = effective_delay(args.command_age_ms * 1e-3, args.rate_hz, cfg.dt_s), "command age"
+    elif args.delay_ms is not None:
+        delay_s, source = args.delay_ms * 1e-3, "given"
+    else:
+        delay_s, source = DESIGN_DELAY_S, "design"
+    design = design_law(model, bw, rom_modes=rom_modes)
+    loop = LoopModel(bw, delay_s)
+    u_max = 2.5 * design.open_loop_flutter_mps
+    cl = closed_loop_flutter(model, design.law, loop, rom_modes, u_max=u_max, n_scan=40)
+    payload: dict[str, Any] = {
+        "flutter_speed_mps": design.open_loop_flutter_mps,
+        "flutter_frequency_hz": design.notes["open_loop_flutter_frequency_hz"],
+        "closed_loop_flutter_speed_mps": cl.speed_mps,
+        "closed_loop_flutter_frequency_hz": cl.frequency_hz,
+        "closed_loop_unstable_at_low_speed": cl.unstable_at_low_speed,
+        "ratio": None if cl.speed_mps is None else cl.speed_mps / design.open_loop_flutter_mps,
+        "loop_delay_s": delay_s, "loop_delay_source": source, "actuator_bandwidth_hz": bw,
+        "law": design.law.as_dict(), "design_delay_s": design.loop.delay_s,
+        "robust_delay_s": design.notes["robust_delay_s"], "sensor_noise_m": design.sensor_noise_m,
+        "noise_force_rms_npm": noise_force_rms(design.law, args.rate_hz), "controller_rate_hz": args.rate_hz,
+        "aero": "rom", "rom_modes": rom_modes, "formulation": "continuous",
+    }
+    if args.plot:
+        from panel_rig.analysis.plots import plot_control_damping
+
+        speeds = np.linspace(1.0, min(u_max, 1.6 * (cl.speed_mps or u_max)), 45)
+        payload["plot"] = str(plot_control_damping(
+            speeds, damping_curves(model, speeds, None, loop, rom_modes),
+            damping_curves(model, speeds, design.law, loop, rom_modes), args.plot, design.open_loop_flutter_mps,
+            cl.speed_mps, f"rate feedback g = {design.law.gain_nspm2:g} N s/m^2, derivative filter "
+                          f"{design.law.derivative_hz:g} Hz, actuator {bw:g} Hz, loop delay {delay_s * 1e3:.2f} ms"))
+
+    def table() -> str:
+        speed = "stable up to {:.1f} m/s".format(u_max) if cl.speed_mps is None else f"{cl.speed_mps:8.3f} m/s"
+        return (f"open-loop flutter speed    {design.open_loop_flutter_mps:8.3f} m/s (ROM, continuous)\n"
+                f"closed-loop flutter speed  {speed}"
+                + ("" if cl.speed_mps is None else f" (x{cl.speed_mps / design.open_loop_flutter_mps:.3f}, "
+                                                   f"{cl.frequency_hz:.2f} Hz)") + "\n"
+                f"law                        F = -{design.law.gain_nspm2:g} s/(1 + s/(2 pi "
+                f"{design.law.derivative_hz:g})) w   [N/m per m/s]\n"
+                f"loop                       actuator {bw:g} Hz, delay {delay_s * 1e3:.3f} ms ({source})")
+
+    _emit(args, payload, table)
+    return 0
+
+
 class Progress:
     """A one-line progress bar on a terminal (stderr); silent otherwise."""
 
@@ -125,9 +198,29 @@ def cmd_lco(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if not (0 < args.duration <= 3600):
         raise UsageError(f"--duration must be in (0, 3600] s, got {args.duration}")
-    res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
-                          keep=bool(args.plot), progress=Progress("lco"))
-    payload = res.as_dict()
+    if args.turbulence_intensity is not None or args.seed is not None:
+        # the tunnel: the panel starts at rest and only the turbulence disturbs it (the same Rig as the node)
+        from panel_rig.analysis.lco import diverged_result, lco_metrics
+        from panel_rig.rig.runs import run_tunnel
+
+        changes: dict[str, Any] = {}
+        if args.turbulence_intensity is not None:
+            changes["turbulence_intensity"] = args.turbulence_intensity
+        if args.seed is not None:
+            changes["turbulence_seed"] = args.seed
+        cfg = cfg.replace(**changes)
+        run = run_tunnel(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                         progress=Progress("lco"))
+        tip = run.tip_w_over_L
+        res = (diverged_result(args.airspeed, run.aborted_at_s) if run.aborted_at_s is not None
+               else lco_metrics(tip, run.dt_s, args.airspeed))
+        payload = res.as_dict()
+        payload.update(turbulence_intensity=cfg.turbulence_intensity, turbulence_spectrum=cfg.turbulence_spectrum,
+                       seed=cfg.turbulence_seed)
+    else:  # the paper's computation: a quiet tunnel, a small initial 2nd-mode deflection starts the flutter
+        res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
+                              keep=bool(args.plot), progress=Progress("lco"))
+        payload = res.as_dict()
     if args.plot:
         from panel_rig.analysis.plots import plot_series
 
@@ -188,6 +281,47 @@ def cmd_forced(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_gust(args: argparse.Namespace) -> int:
+    from panel_rig.analysis.gust import GUST_WAKE_CHORDS, sears_comparison
+
+    cfg = _config(args)
+    ks = args.k
+    if not ks or any(not (np.isfinite(k) and 0 < k <= 10) for k in ks):
+        raise UsageError(f"--k needs reduced frequencies in (0, 10], got {ks}")
+    wake = GUST_WAKE_CHORDS if args.wake_chords is None else args.wake_chords
+    if not (np.isfinite(wake) and 1 <= wake <= 500):
+        raise UsageError(f"--wake-chords must be in [1, 500], got {wake}")
+    points = sears_comparison(cfg, ks, wake)
+    payload = {"points": points, "elements": cfg.n_elements, "wake_chords": wake}
+    _emit(args, payload, lambda: "     k   |L|/(2 pi rho U b w0)   phase (deg)   Sears |S|   Sears phase (deg)\n" + "\n".join(
+        f"{p['k']:6.3f}  {p['lift_magnitude']:21.4f}  {p['lift_phase_deg']:12.2f}  {p['sears_magnitude']:10.4f}"
+        f"  {p['sears_phase_deg']:18.2f}" for p in points))
+    return 0
+
+
+def cmd_static(args: argparse.Namespace) -> int:
+    from panel_rig.model.elastica import static_tip_load
+
+    cfg = _config(args)
+    D, L = cfg.bending_stiffness_nm, cfg.panel_length_m
+    alpha = args.tip_load_parameter if args.tip_load_parameter is not None else args.tip_force * L**2 / D
+    if not np.isfinite(alpha):
+        raise UsageError(f"the tip load must be finite, got {alpha}")
+    try:
+        r = static_tip_load(float(alpha), args.variant, n_modes=cfg.n_modes)
+    except RuntimeError as exc:
+        raise UsageError(str(exc)) from None
+    payload = r.as_dict()
+    payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes)
+    _emit(args, payload, lambda: (
+        f"dead transverse tip load, variant {r.variant}, {cfg.n_modes} modes\n"
+        f"P L^2/D          {r.alpha:10.5f}   (P = {alpha * D / L**2:.5g} N/m)\n"
+        f"tip w/L          {r.tip_w_over_L:10.5f}\n"
+        f"tip u/L          {r.tip_u_over_L:10.5f}   (axial shortening)\n"
+        f"tip angle, rad   {r.tip_angle_rad:10.5f}"))
+    return 0
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -221,6 +355,18 @@ def _operator_main(argv: Sequence[str]) -> int:
     return main(argv)
 
 
+def _control_main(argv: Sequence[str]) -> int:
+    from panel_rig.ros.controller import main
+
+    return main(argv)
+
+
+def _control_demo_main(argv: Sequence[str]) -> int:
+    from panel_rig.control_demo import main
+
+    return main(argv)
+
+
 def _demo_main(argv: Sequence[str]) -> int:
     from panel_rig.demo import main
 
@@ -233,6 +379,10 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
                         "[--ros-args ...]"),
     "operate": (_operator_main, "play a test procedure over the rig's command topics: --profile FILE "
                                 "[--namespace NS] [--ros-args ...]"),
+    "control": (_control_main, "the reference flutter-suppression controller node: [--params FILE] "
+                               "[--ros-args -r __ns:=/rig -p gain_nspm2:=G ...]"),
+    "control-demo": (_control_demo_main, "flutter suppression over topics: node + controller, quiet at 1.2 U_f, "
+                                         "predicted vs emulated closed-loop onset, bag + Rerun"),
     "demo": (_demo_main, "a tunnel session: node (fast) + staircase operator + recording + analysis"),
 }
 
@@ -243,10 +393,117 @@ def cmd_bag_recover(args: argparse.Namespace) -> int:
     return main_bag_recover(args.bag)
 
 
-def cmd_analyze(args: argparse.Namespace) -> int:
-    from panel_rig.recording.analyze import run
+# ---- analyze: glue between the bag loader (recording.series) and the analysis (analysis.bag_analysis)
+ANALYZE_PROG = "panel-rig analyze"
 
-    return run(args)
+
+def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None) -> dict[str, Any]:
+    """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`.
+
+    Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
+    from pathlib import Path
+
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
+    from panel_rig.recording.series import load_series
+
+    crit = criteria if criteria is not None else Criteria()
+    rec = load_series(Path(bag_dir), shapes=rerun_path is not None)
+    core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
+    result: dict[str, Any] = {
+        "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
+        "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")), **core,
+    }
+    result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
+                       if plots_dir is not None else [])
+    result["rerun"] = _write_rerun(rec, Path(rerun_path)) if rerun_path is not None else None
+    return result
+
+
+def _write_rerun(rec: Any, path: Any) -> str:
+    """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live)."""
+    from panel_rig.viz import RerunLogger
+
+    n_modes = max(1, rec.q.shape[1])
+    q = rec.q if rec.q.shape[1] else np.zeros((rec.t_s.size, 1))
+    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name)
+    try:
+        logger.log_batch(rec.t_s, rec.tip_w_over_L, q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
+        for name, events in rec.commands.items():
+            for t, value in events:
+                logger.on_command(name, value, True, t)
+        for t, x, z in rec.shapes:
+            logger.log_shape(t, x, z)
+    finally:
+        logger.close()
+    return str(path)
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """Human-readable plateau table and onset lines of an `analyze_bag` result."""
+    head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
+            f"{'rate_1/s':>8} status")
+    lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
+             f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})", head]
+    for p in result["plateaus"]:
+        lines.append(
+            f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
+            f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {p['dominant_frequency_hz']:>6.2f} "
+            f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
+        )
+    o = result["onset"]
+
+    def num(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f}"
+
+    lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
+                 f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
+                 f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    for path in result.get("plots") or []:
+        lines.append(f"plot: {path}")
+    if result.get("rerun"):
+        lines.append(f"rerun: {result['rerun']}")
+    return "\n".join(lines)
+
+
+def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
+    """The `analyze` options."""
+    p.add_argument("bag", metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--plots", metavar="DIR", help="write time_history/spectrogram/lco_vs_airspeed PNGs here")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="write the replay as a Rerun recording")
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    """0 ok; 2 bad or damaged bag (one stderr line; a damaged one names `panel-rig bag recover`);
+    1 cannot write outputs."""
+    from panel_rig.recording.errors import RecordingError
+
+    try:
+        result = analyze_bag(args.bag, args.plots, args.rerun)
+    except RecordingError as exc:
+        print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"{ANALYZE_PROG}: {exc.filename or args.bag}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - e.g. VizError: never a traceback
+        print(f"{ANALYZE_PROG}: {args.bag}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
+def analyze_main(argv: Sequence[str] | None = None) -> int:
+    """`panel-rig analyze BAG [--json] [--plots DIR] [--rerun OUT.rrd]` on its own (usage error: exit 2)."""
+
+    class _AnalyzeParser(argparse.ArgumentParser):
+        def error(self, message: str) -> None:  # one line, status 2
+            print(f"{ANALYZE_PROG}: {message}", file=sys.stderr)
+            raise SystemExit(2)
+
+    parser = _AnalyzeParser(prog=ANALYZE_PROG, description="airspeed plateaus, LCO and flutter onset from a bag")
+    add_analyze_arguments(parser)
+    return cmd_analyze(parser.parse_args(argv))
 
 
 # ---- parser -----------------------------------------------------------------------------------
@@ -275,7 +532,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rom-modes", type=int, metavar="N", help="Ra, aerodynamic eigenmodes (default: aero.rom_modes)")
     p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",
                    help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
-    p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus)")
+    p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus); with "
+                   "--control: open- vs closed-loop damping")
+    p.add_argument("--control", action="store_true",
+                   help="closed loop with the reference controller, the control actuator and the loop delay")
+    p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
+    p.add_argument("--command-age-ms", type=float,
+                   help="--control: a measured mean command age, ms (adds half a controller period and a physics step)")
+    p.add_argument("--rate-hz", type=float, default=500.0, help="--control: controller rate, Hz (default 500)")
+    p.add_argument("--actuator-bandwidth-hz", type=float, help="--control: default control.bandwidth_hz")
     p.set_defaults(func=cmd_flutter)
 
     def model_opts(p: argparse.ArgumentParser, aero: bool = True) -> None:
@@ -292,6 +557,11 @@ def build_parser() -> argparse.ArgumentParser:
     model_opts(p)
     p.add_argument("--airspeed", type=float, required=True, metavar="U", help="m/s")
     p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds")
+    p.add_argument("--turbulence-intensity", type=float, metavar="X",
+                   help="run in the tunnel from rest with this turbulence intensity sigma/U (sets "
+                        "tunnel.turbulence.intensity; 0 = quiet tunnel from rest); without it and --seed: the paper's "
+                        "quiet run from a small initial deflection")
+    p.add_argument("--seed", type=int, metavar="N", help="turbulence seed (sets tunnel.turbulence.seed)")
     p.set_defaults(func=cmd_lco)
 
     p = sub.add_parser("lco-sweep", help="LCO amplitude and frequency versus airspeed (Fig. 8)")
@@ -309,6 +579,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m")
     p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency")
     p.set_defaults(func=cmd_forced)
+
+    p = sub.add_parser("gust", help="lift of the rigid lattice in a convected sinusoidal gust vs the Sears function")
+    _common(p)
+    p.add_argument("--k", type=float, nargs="+", required=True, metavar="K",
+                   help="reduced frequencies omega b / U, b = half of airfoil + panel chord")
+    p.add_argument("--wake-chords", type=float, metavar="W",
+                   help="wake length in chords for this check (default 60, as the Theodorsen check)")
+    p.set_defaults(func=cmd_gust)
+
+    from panel_rig.model.elastica import STATIC_VARIANTS
+
+    p = sub.add_parser("static", help="static deflection under a dead transverse tip load (the elastica)")
+    _common(p)
+    load = p.add_mutually_exclusive_group(required=True)
+    load.add_argument("--tip-load-parameter", type=float, metavar="ALPHA", help="P L^2 / D (D: the model's "
+                      "bending stiffness per unit span)")
+    load.add_argument("--tip-force", type=float, metavar="N_PER_M", help="P, N per metre span")
+    p.add_argument("--variant", choices=STATIC_VARIANTS, default="exact",
+                   help="structure (statics have no inertia: full and stiffness agree)")
+    p.set_defaults(func=cmd_static)
 
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)
@@ -331,14 +621,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bag", help="recording utilities")
     bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
-    r = bag.add_parser("recover", help="rebuild a readable bag from a killed recording")
+    r = bag.add_parser("recover", help="rebuild a readable bag from a killed or corrupt recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)
 
-    from panel_rig.recording.analyze import add_arguments as analyze_arguments
-
     p = sub.add_parser("analyze", help="airspeed plateaus, LCO and flutter onset from a recorded bag")
-    analyze_arguments(p)
+    add_analyze_arguments(p)
     p.set_defaults(func=cmd_analyze)
     return parser
 

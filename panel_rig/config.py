@@ -44,6 +44,16 @@ class PanelConfig:
     load_point: str = "quarter"
     dt_s: float = 1.0 / 2048.0
     max_tip_w_over_L: float = 2.0
+    # the tunnel and the tip sensor around the model (used by panel_rig/rig/: turbulence.py, sensor.py; the model
+    # itself never reads them); same values as config/tang_dowell_2002.yaml, where their sources are given
+    turbulence_intensity: float = 0.001
+    turbulence_length_scale_m: float = 0.1
+    turbulence_spectrum: str = "von_karman"
+    turbulence_seed: int = 0
+    sensor_tip_noise_m: float = 5.0e-6
+    sensor_resolution_m: float = 3.0e-6
+    sensor_bandwidth_hz: float = 1000.0
+    sensor_latency_s: float = 0.0005
 
     @property
     def mass_per_area_kgpm2(self) -> float:
@@ -132,6 +142,7 @@ def _choice(field: str, choices: tuple[str, ...]) -> _Spec:
 
 
 LOAD_POINTS = ("quarter", "three_quarter", "center")
+TURBULENCE_SPECTRA = ("dryden", "von_karman", "off")  # = panel_rig.rig.turbulence.SPECTRA (config is the top layer)
 
 SCHEMA: dict[str, _Spec] = {
     "panel.length_m": _num("panel_length_m", 0.0, lo_open=True),
@@ -150,6 +161,14 @@ SCHEMA: dict[str, _Spec] = {
     "aero.load_point": _choice("load_point", LOAD_POINTS),
     "sim.dt_s": _num("dt_s", 0.0, 0.01, lo_open=True),
     "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, lo_open=True),
+    "tunnel.turbulence.intensity": _num("turbulence_intensity", 0.0, 0.2),  # sigma / U
+    "tunnel.turbulence.length_scale_m": _num("turbulence_length_scale_m", 1e-3, 100.0),
+    "tunnel.turbulence.spectrum": _choice("turbulence_spectrum", TURBULENCE_SPECTRA),
+    "tunnel.turbulence.seed": _num("turbulence_seed", 0, 2**63 - 1, kind=int),
+    "sensor.tip_noise_m": _num("sensor_tip_noise_m", 0.0, 0.1),
+    "sensor.resolution_m": _num("sensor_resolution_m", 0.0, 0.1),
+    "sensor.bandwidth_hz": _num("sensor_bandwidth_hz", 0.0),  # 0: unlimited
+    "sensor.latency_s": _num("sensor_latency_s", 0.0, 1.0),
 }
 
 

@@ -2,7 +2,7 @@
 
 Starts the rig node in fast mode as a subprocess (own ROS domain, localhost discovery, logs under
 ``out/``) recording a bag and a Rerun ``.rrd``, plays ``config/staircase.yaml`` with the scripted
-operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.recording.analyze``
+operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.cli.analyze_bag``
 exists) into PNGs and prints what happened.
 """
 
@@ -20,6 +20,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
+#: amplitudes (its tip cannot pass its own length, and it does not diverge past ~1.2 U_f as the cubic ones do)
+DEMO_VARIANT = "exact"
 NODE_STOP_TIMEOUT_S = 20.0
 
 
@@ -48,7 +51,7 @@ def _stop(proc: subprocess.Popen) -> int:
 
 def _analyze(bag: Path, out: Path) -> str:
     """Analyse the new bag: PNGs and analysis.json into out; returns the human-readable table."""
-    from panel_rig.recording.analyze import analyze_bag, format_table
+    from panel_rig.cli import analyze_bag, format_table
 
     result = analyze_bag(bag, plots_dir=out)
     (out / "analysis.json").write_text(json.dumps(result, indent=1, default=str))
@@ -76,7 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 str(ROOT / "config" / "tang_dowell_2002.yaml"), "--ros-args", "-r", "__ns:=/rig",
                 "--params-file", str(ROOT / "config" / "rig.yaml"),
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
-                "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}"]
+                "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}",
+                "-p", f"model.variant:={DEMO_VARIANT}"]
     with open(node_log, "w") as log:
         node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:

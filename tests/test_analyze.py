@@ -24,10 +24,21 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from panel_rig.cli import analyze_bag
+from panel_rig.cli import analyze_main as main
 from panel_rig.recording import BagWriter
-from panel_rig.recording.analyze import analyze_bag, main
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def read_ros2_messages(path: str) -> list:
+    """Decoded messages (schema, channel, message, decoded_message) through mcap's make_reader with
+    the mcap-ros2 DecoderFactory (mcap_ros2.reader.read_ros2_messages is deprecated)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
 REFERENCE = ROOT / "bags" / "stiffness_staircase"
 
 # ------------------------------------------------------------------------------ synthetic bag
@@ -296,7 +307,6 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
 
 
 def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
     from rosbags.highlevel import AnyReader
 
@@ -328,6 +338,24 @@ def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]
     print(f"message counts (mcap-ros2 = rosbags = rerun): {dict(ours)}")
 
 
+def test_node_bag_records_the_sensor_reading_and_the_truth(node_run: dict[str, object]) -> None:
+    """tip_displacement (through the sensor model) and tip_displacement/truth (the model's tip) are both recorded,
+    with the same stamps; the reading follows the truth (latency + bandwidth lag < half a 2 ms sample) and differs
+    from it (noise, resolution, lag)."""
+    from mcap_ros2.reader import read_ros2_messages
+
+    mcap = next(node_run["bag"].glob("*.mcap"))
+    series: dict[str, list[tuple[int, float]]] = {"/rig/tip_displacement": [], "/rig/tip_displacement/truth": []}
+    for m in read_ros2_messages(str(mcap), topics=list(series)):
+        stamp = m.ros_msg.header.stamp
+        series[m.channel.topic].append((stamp.sec * 1_000_000_000 + stamp.nanosec, m.ros_msg.point.z))
+    meas, truth = (np.array(series[t]) for t in series)
+    assert len(meas) == len(truth) > 1000
+    assert np.array_equal(meas[:, 0], truth[:, 0])
+    assert np.corrcoef(meas[:, 1], truth[:, 1])[0, 1] > 0.99
+    assert not np.array_equal(meas[:, 1], truth[:, 1])
+
+
 def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object) -> None:
     """The plateau's metrics window (last 5 s of the free response, as `lco`) against `panel-rig lco`."""
     from panel_rig.analysis.lco import run_lco
@@ -347,7 +375,6 @@ def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object)
 
 
 def test_live_rrd_entities_and_rows(node_run: dict[str, object]) -> None:
-    from mcap_ros2.reader import read_ros2_messages
     from rerun.chunk import RrdReader
 
     counts = Counter(m.channel.topic for m in read_ros2_messages(str(next(node_run["bag"].glob("*.mcap")))))
@@ -367,16 +394,20 @@ def test_analyze_writes_rrd_from_bag(node_run: dict[str, object], tmp_path: Path
 
     res = analyze_bag(node_run["bag"], rerun_path=tmp_path / "replay.rrd")
     temporal: Counter = Counter()
+    policy: dict[str, list] = {}
     for chunk in RrdReader(res["rerun"]).stream().to_chunks():
         if not chunk.is_static:
             temporal[str(chunk.entity_path)] += chunk.num_rows
+        elif "SeriesLines:aggregation_policy" in (batch := chunk.to_record_batch()).schema.names:
+            policy[str(chunk.entity_path)] = batch.column("SeriesLines:aggregation_policy").to_pylist()
     assert temporal["/tip/w_over_L"] == res["samples"] == temporal["/modal/q3"]
+    assert policy["/tip/w_over_L"] == policy["/modal/q3"] == [[5]]  # MinMax: the replay keeps the LCO envelope
     assert temporal["/panel/shape"] > 0 and temporal["/commands/shaker/force_cmd"] == 2
 
 
 def test_irregular_lco_and_exponential_decay_are_told_apart() -> None:
     """A large bursting oscillation (non-exponential envelope) is an LCO; a clean exponential decay is not."""
-    from panel_rig.recording.analyze import Criteria, _status
+    from panel_rig.analysis.bag_analysis import Criteria, _status
 
     c = Criteria()
     assert _status(0.2, 0.8, -0.2, -0.2, sustain=0.3, r2=0.4, crit=c) == "lco"
@@ -387,7 +418,7 @@ def test_irregular_lco_and_exponential_decay_are_told_apart() -> None:
 
 def test_onset_ignores_plateaus_after_the_first_lco() -> None:
     """Hysteresis: plateaus back below the flutter speed that stay in LCO, or decay later, do not move the bracket."""
-    from panel_rig.recording.analyze import estimate_onset
+    from panel_rig.analysis.bag_analysis import estimate_onset
 
     def p(u, status, t0, rate=0.0):
         return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}

@@ -33,9 +33,10 @@ NOT_RUN_HERE = {
     ("colcon",): "needs a ROS workspace; tests/test_packaging.py runs `colcon list` on the package",
     ("panel-rig", "study", "--scheduler"): "needs a running Dask scheduler and workers; tests/test_studies.py "
                                            "starts them on 127.0.0.1 and runs the same command against them",
+    ("panel-rig", "control-demo"): "takes ~1.5 min; tests/test_control_node.py runs the same loop (node + controller)",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work
-SERVICES = {"run": "panel_rig up", "operate": None}
+SERVICES = {"run": "panel_rig up", "operate": None, "control": "controller up"}
 TIMEOUT_S = 240.0
 
 

@@ -22,7 +22,6 @@ pytest.importorskip("mcap_ros2")
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped, Vector3Stamped
 from mcap.reader import make_reader
-from mcap_ros2.reader import read_ros2_messages
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Float64
@@ -46,6 +45,16 @@ except ImportError:  # pragma: no cover - depends on the installed interfaces
     Clock = None
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def read_ros2_messages(path: str) -> list:
+    """Decoded messages (schema, channel, message, decoded_message) through mcap's make_reader with
+    the mcap-ros2 DecoderFactory (mcap_ros2.reader.read_ros2_messages is deprecated)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
 T0_NS = 1_700_000_000_000_000_000
 N_SAMPLES = 60  # per high-rate topic
 PARAMS = {"physics_dt": 1 / 2048, "n_modes": 3, "variant": "full", "limits": [0.1, 40.0]}
@@ -142,11 +151,11 @@ def test_bag_layout_and_mcap_ros2_roundtrip(bag: Path) -> None:
     with open(bag / "run_a_0.mcap", "rb") as f:
         header = make_reader(f).get_header()
     assert header.profile == "ros2" and "panel_rig" in header.library
-    js = [m.ros_msg for m in decoded if m.channel.topic == "/rig/modal_states"]
+    js = [m.decoded_message for m in decoded if m.channel.topic == "/rig/modal_states"]
     assert list(js[7].name) == ["q1", "q2", "q3"]
     assert list(js[7].position) == pytest.approx([0.07, -0.014, 7e-4])
     assert list(js[7].effort) == pytest.approx([8.0, 2.0, 3.0])
-    markers = [m.ros_msg for m in decoded if m.channel.topic == "/rig/panel_shape"]
+    markers = [m.decoded_message for m in decoded if m.channel.topic == "/rig/panel_shape"]
     assert markers[2].type == Marker.LINE_STRIP and len(markers[2].points) == 20
     assert markers[2].points[19].z == pytest.approx(1e-3 * 10 * 19)
     assert len(markers[2].colors) == 20

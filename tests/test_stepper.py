@@ -3,18 +3,19 @@
 import numpy as np
 import pytest
 
+from panel_rig.analysis import published as paper
 from panel_rig.analysis.flutter import find_flutter
 from panel_rig.analysis.forced import forced_sweep
 from panel_rig.analysis.lco import run_lco
 from panel_rig.model.stepper import DivergenceError, Stepper
 
-PAPER_UF_MPS = 12.5
+PAPER_UF_MPS = paper.FLUTTER_SPEED_MPS
 
 
 @pytest.fixture(scope="module")
 def u_c3(model):
     """13.5 m/s scaled to our flutter speed: the paper's overspeed ratio 13.5 / 12.5 (ROM Ra = 12)."""
-    return 13.5 / PAPER_UF_MPS * find_flutter(model, aero="rom", rom_modes=12).speed_mps
+    return paper.overspeed_ratio(paper.LCO_AIRSPEED_MPS) * find_flutter(model, aero="rom", rom_modes=12).speed_mps
 
 
 def test_linear_forced_response_peaks_at_natural_frequencies(cfg, model):
@@ -43,8 +44,8 @@ def test_C3_stiffness_only_lco(cfg, model, u_c3):
     """C3: RMS tip w/L 0.093 within 25 %, frequency 22.55 Hz within 5 %, at U/U_f = 13.5/12.5."""
     res, _, _ = run_lco(cfg, u_c3, 30.0, "stiffness", model=model)
     assert not res.diverged
-    assert res.rms_tip_w_over_L == pytest.approx(0.093, rel=0.25)
-    assert res.dominant_frequency_hz == pytest.approx(22.55, rel=0.05)
+    assert res.rms_tip_w_over_L == pytest.approx(paper.C3_STIFFNESS_RMS_W_OVER_L, rel=0.25)
+    assert res.dominant_frequency_hz == pytest.approx(paper.C3_STIFFNESS_FREQUENCY_HZ, rel=0.05)
     assert res.steady_after_s is not None and res.steady_after_s < 25
 
 

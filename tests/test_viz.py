@@ -90,6 +90,29 @@ def test_values_timeline_and_blueprint(rrd: Path) -> None:
     assert times_ns.cast("int64").to_pylist()[-1] == pytest.approx((1.0 + 249 / 500.0) * 1e9, abs=2)
 
 
+def _static_aggregation(path: Path) -> dict[str, list]:
+    """Entity path -> the static `SeriesLines:aggregation_policy` values (enum ints) in the file."""
+    out: dict[str, list] = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        if not chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        if "SeriesLines:aggregation_policy" in batch.schema.names:
+            rows = batch.column("SeriesLines:aggregation_policy").to_pylist()
+            out.setdefault(str(chunk.entity_path), []).extend(v for row in rows for v in row)
+    return out
+
+
+def test_series_keep_their_envelope_when_zoomed_out(rrd: Path) -> None:
+    """Finding 10: Rerun's default zoom aggregation (average) flattens an LCO; the oscillating series use MinMax."""
+    import rerun as rr
+
+    minmax = rr.components.AggregationPolicy.MinMax.value
+    policies = _static_aggregation(rrd)
+    for entity in ["/tip/w_over_L", "/shaker/force_npm"] + [f"/modal/q{i}" for i in range(1, N_MODES + 1)]:
+        assert policies.get(entity) == [minmax], entity
+
+
 def test_rrd_verify_cli(rrd: Path) -> None:
     rerun_bin = Path(sys.executable).with_name("rerun")
     if not rerun_bin.exists():

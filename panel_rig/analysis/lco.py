@@ -108,5 +108,10 @@ def rms_shape(st: Stepper, airspeed_mps: float, duration_s: float, x_over_L: np.
     for i in range(n):
         st.advance(1, airspeed_mps)
         qs[i] = st.q
-    w = qs @ mode_shapes(st.n_modes, x_over_L)
+    if st.exact:  # w at the arc-length stations of the elastica
+        from panel_rig.model.elastica import shape
+
+        w = shape(qs, x_over_L, n_fine=401)[1]
+    else:
+        w = qs @ mode_shapes(st.n_modes, x_over_L)
     return np.sqrt(np.mean(w**2, axis=0))

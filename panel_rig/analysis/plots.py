@@ -147,3 +147,30 @@ def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict
     ax2.set(ylabel="dominant frequency, Hz", title="(b) LCO frequency")
     ax1.legend(fontsize=8)
     return _save(fig, path)
+
+
+def plot_control_damping(speeds: np.ndarray, open_roots: list[np.ndarray], closed_roots: list[np.ndarray],
+                         path: str | Path, open_uf: float | None, closed_uf: float | None, title: str = "") -> Path:
+    """Open- vs closed-loop damping: Re s of the structural-range roots vs airspeed, flutter speeds marked."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    for k, (label, roots, uf) in enumerate((("open loop", open_roots, open_uf),
+                                            ("closed loop", closed_roots, closed_uf))):
+        for u, s in zip(speeds, roots):
+            sel = s.imag > 1.0
+            kw = dict(color=f"C{k}", s=10 if k == 0 else 14, marker="." if k == 0 else "o",
+                      label=label if u == speeds[0] else None)
+            if k:
+                kw.update(facecolors="none", edgecolors=f"C{k}", color=None)
+            ax1.scatter(np.full(sel.sum(), u), s.real[sel], **kw)
+            ax2.scatter(s.real[sel], s.imag[sel] / (2 * np.pi), **kw)
+        if uf is not None:
+            ax1.axvline(uf, color=f"C{k}", ls=":", lw=1.2)
+            ax1.annotate(f"{label} U_f = {uf:.2f} m/s", (uf, 6 - 4 * k), fontsize=8, color=f"C{k}")
+    ax1.axhline(0, color="k", lw=0.5)
+    ax2.axvline(0, color="k", lw=0.5)
+    ax1.set(xlabel="flow velocity, m/s", ylabel="damping Re(s), 1/s", ylim=(-25, 10), title="(a) damping")
+    ax2.set(xlabel="damping Re(s), 1/s", ylabel="frequency, Hz", xlim=(-25, 10), ylim=(0, 90), title="(b) root locus")
+    ax1.legend(fontsize=8, loc="lower left")
+    if title:
+        fig.suptitle(title, fontsize=9)
+    return _save(fig, path)

@@ -134,3 +134,91 @@ def harmonic_lift(lat: VortexLattice, k_reduced: float, w_shape: np.ndarray, w_s
     dp = (0.5 * (g_new[:nb] + g_old[:nb]) + np.cumsum(g_new[:nb] - g_old[:nb]))  # Eq. (4), / (rho U^2)
     # evaluate at mid-step: the pair (new, old) straddles t + dt_a / 2
     return complex(np.sum(dp) * lat.dx_m / b * np.exp(0.5j * theta))
+
+
+# ---- gust input: a vertical gust field w_g(x, t) (upwash, m/s, positive up) adds to the downwash w of Eq. (3) at
+# every collocation point; a gust is the same as the plate moving down through still air. ------------------------
+def harmonic_body_circulation(lat: VortexLattice, theta: float, w_body: np.ndarray) -> np.ndarray:
+    """Body vortex strengths of the discrete system (z A + B) g = z w, z = e^{i theta}, for a harmonic downwash
+    w_body at the collocation points (theta = omega dt_a, the phase advance per aerodynamic step).
+
+    The wake rows are solved in closed form (each wake vortex is its upstream neighbour one step earlier,
+    g_j = g_{j-1} / z; the last keeps the relaxation fraction; Kelvin sheds the change of bound circulation),
+    so only a km x km system is solved and any wake length costs the same.
+    """
+    nb, nw = lat.n_body, lat.n_wake
+    z = np.exp(1j * theta)
+    relax = -lat.B[-1, -1]
+    decay = z ** -np.arange(nw - 1, dtype=float)
+    shape = np.concatenate([decay, [decay[-1] / (z - relax)]])  # wake strengths per unit first wake vortex
+    wake_influence = lat.A[:nb, nb:] @ shape  # downwash at the collocation points per unit first wake vortex
+    kelvin = -(1.0 - 1.0 / z)  # first wake vortex per unit total bound circulation
+    M = lat.A[:nb, :nb] + kelvin * np.outer(wake_influence, np.ones(nb))
+    return np.linalg.solve(M, np.asarray(w_body, dtype=complex))
+
+
+def sinusoidal_gust_lift(lat: VortexLattice, k_reduced: float, x_ref_m: float | None = None,
+                         running_sum: str = "inclusive") -> complex:
+    """Lift of the rigid lattice in a convected sinusoidal vertical gust, normalised by 2 pi rho U b w0 (Sears).
+
+    Gust (Taylor's frozen field): w_g(x, t) = w0 Re exp[i omega (t - (x - x_ref) / U)], k = omega b / U with b
+    the semi-chord of the whole body (airfoil + panel); the phase is referred to the gust at x_ref (default
+    mid-chord). ``running_sum``: "inclusive" is Eq. (4) as printed (the potential jump at element j includes
+    its own vortex: the model's force, first order in dx); "midpoint" counts half of it (second order), for
+    the convergence study only.
+    """
+    nb = lat.n_body
+    b = 0.5 * nb * lat.dx_m
+    x_ref = b if x_ref_m is None else x_ref_m
+    theta = k_reduced * lat.dx_m / b
+    z = np.exp(1j * theta)
+    w = np.exp(-1j * k_reduced * (lat.x_colloc_m - x_ref) / b)  # w / w0 at t_{n+1}
+    g_new = harmonic_body_circulation(lat, theta, w)  # gamma / w0
+    g_old = g_new / z
+    d = g_new - g_old
+    run = np.cumsum(d) - (0.5 * d if running_sum == "midpoint" else 0.0)
+    dp = 0.5 * (g_new + g_old) + run  # Eq. (4) / (rho U w0), per element
+    return complex(np.sum(dp) * lat.dx_m * np.exp(0.5j * theta) / (2.0 * np.pi * b))
+
+
+def step_gust_lift(lat: VortexLattice, n_steps: int) -> np.ndarray:
+    """Lift build-up L / (2 pi rho U b w0) after a sharp-edged vertical gust w0 reaches the leading edge at step 0
+    and convects at U (Kuessner problem); the plate is still. Step n covers s = U t / b in [2n/km, 2(n+1)/km];
+    the value is the mid-step pressure lift (as in :func:`indicial_lift`). At t_{n+1} the front is at (n+1) dx,
+    past the collocation points (i + 3/4) dx of elements i <= n.
+
+    Marches Eq. (3) with the wake rows done explicitly (shift by one element, relaxation on the last, Kelvin
+    for the first), so a step costs one km x km solve and one pass over the wake.
+    """
+    nb, n = lat.n_body, lat.size
+    relax = -lat.B[-1, -1]
+    A_bw = lat.A[:nb, nb:]
+    lu = _lu(lat.A[:nb, :nb] - np.outer(A_bw[:, 0], np.ones(nb)))  # first wake vortex = -(change of bound sum)
+    g_old = np.zeros(n)
+    out = np.empty(n_steps)
+    b = 0.5 * nb * lat.dx_m
+    for step in range(n_steps):
+        g_new = np.zeros(n)
+        g_new[nb + 1:] = g_old[nb:-1]
+        g_new[-1] += relax * g_old[-1]
+        w = np.zeros(nb)
+        w[: min(step + 1, nb)] = 1.0
+        rhs = w - A_bw[:, 1:] @ g_new[nb + 1:] - A_bw[:, 0] * np.sum(g_old[:nb])
+        g_new[:nb] = _lu_solve(lu, rhs)
+        g_new[nb] = np.sum(g_old[:nb]) - np.sum(g_new[:nb])
+        dp = pressure_jump(lat, 1.0, 1.0, g_new, g_old, lat.dx_m)  # U = 1, rho = 1, w0 = 1, dt = dx / U
+        out[step] = np.sum(dp) * lat.dx_m / (2 * np.pi * b)
+        g_old = g_new
+    return out
+
+
+def _lu(a: np.ndarray):
+    import scipy.linalg
+
+    return scipy.linalg.lu_factor(a)
+
+
+def _lu_solve(lu, rhs: np.ndarray) -> np.ndarray:
+    import scipy.linalg
+
+    return scipy.linalg.lu_solve(lu, rhs)

@@ -5,6 +5,7 @@ Coupling of structure and lattice (Eqs. 1, 4, 5, 23):
   downwash at the collocation points   w = -(E_vel q_dot + U E_slope q)   (E_vel = L phi(x_c), E_slope = phi'(x_c),
                                                                            zero on the rigid airfoil)
   generalised aerodynamic force        Q = rho L dx Psi [U gamma_b + dx S dgamma_b/dt]
+  a vertical gust w_g(x_c, t) (upwash, positive up) adds to w at every collocation point (airfoil and panel)
 with Psi the mode shapes at the element load points (zero on the airfoil) and S the running sum of Eq. (4).
 The structure is discretised by the trapezoidal rule, so Eq. (24) is centred at t + 1/2 as printed.
 """
@@ -70,6 +71,12 @@ class ContinuousAero:
     Gv: np.ndarray  # (r, n)
     Gs: np.ndarray  # (r, n)
     dx_m: float
+    # gust input: a vertical gust w_g (km,) at the collocation points adds to the downwash, so it enters through
+    # the ROM's input matrix and its static correction like the motion does:
+    #   Q += U Qg w_g + Qgd dw_g/dt,   d xi/dt += Gg dw_g/dt
+    Qg: np.ndarray  # (n, km) kg/m^2: quasi-steady (static correction) force per unit U w_g
+    Qgd: np.ndarray  # (n, km) kg/m: force per unit dw_g/dt (static part of the vortex rates, and the modes' input)
+    Gg: np.ndarray  # (r, km) s/m: ROM input of the gust increment (the ROM's G)
 
     @property
     def n_aero(self) -> int:
@@ -93,6 +100,9 @@ def continuous_aero(cp: Coupling, lat: VortexLattice, rom: AeroROM) -> Continuou
         Gv=rom.G @ cp.E_vel,
         Gs=rom.G @ cp.E_slope,
         dx_m=dx,
+        Qg=fs * cp.Psi @ Gs_b,
+        Qgd=fs * dx * cp.Psi @ S @ H,
+        Gg=rom.G,
     )
 
 

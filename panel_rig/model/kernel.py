@@ -22,6 +22,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from panel_rig.model.kernel_exact import exact_eval, exact_tip
+
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
@@ -37,7 +39,8 @@ class KernelModel(NamedTuple):
     (scaled by U and U^2 per step), ``Qxi``, ``Gv``, ``Gs`` and the block-diagonal aero eigenvalues
     (``blk_off``, ``blk_len``, ``lam_a``, ``lam_b``, scaled by U/dx per step). ``f_vec``: generalised force per
     N/m at the trailing edge; ``tip_vec``: tip w/L per modal coordinate; ``tip_bound``: |tip w/L| that stops a
-    march; ``tol``: Newton tolerance; ``dt`` the step (s) and ``dx`` the vortex spacing (m).
+    march; ``tol``: Newton tolerance; ``dt`` the step (s) and ``dx`` the vortex spacing (m). Gust input
+    (appended): ``Qg``, ``Qgd``, ``Gg``.
     """
 
     dt: float
@@ -65,6 +68,22 @@ class KernelModel(NamedTuple):
     tip_vec: np.ndarray
     tip_bound: float
     tol: float
+    # gust input (see ContinuousAero in aeroelastic.py): a vertical gust w_g at the km collocation points adds
+    # to the downwash; Q += U Qg w_g + Qgd dw_g/dt and d xi/dt += Gg dw_g/dt, at the step midpoint like the rest
+    Qg: np.ndarray  # (n, km)
+    Qgd: np.ndarray  # (n, km)
+    Gg: np.ndarray  # (r, km)
+    # exact (elastica) structure: theta = q . psi at Gauss points (kernel_exact.py, elastica.py); when ``exact``
+    # the cubic terms are off (use_k = use_m = False), M(q), h(q, v) and the dead tip force L B(1; q) replace
+    # them and the reported tip is the exact w(1)/L = int sin(theta). ``ex_run``/``ex_w_elem``: running-integral
+    # matrix and weights of one of the ``ex_n_elem`` elements; ``ex_length``: L (m).
+    exact: bool = False
+    ex_psi: np.ndarray = np.zeros((0, 0))
+    ex_w: np.ndarray = np.zeros(0)
+    ex_run: np.ndarray = np.zeros((0, 0))
+    ex_w_elem: np.ndarray = np.zeros(0)
+    ex_n_elem: int = 0
+    ex_length: float = 0.0
 
 
 @njit(cache=True)
@@ -154,9 +173,14 @@ def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
 
 
 @njit(cache=True)
-def march(q, v, xi, U_seq, F_seq, km, tip_out):
+def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     """Advance (q, v, xi) in place over len(U_seq) steps of the :class:`KernelModel` ``km``; tip w/L of each
     step into tip_out.
+
+    Gust: the vertical gust w_g at the km collocation points enters only through its projections
+    p = [Gg w_g, Qg w_g, Qgd w_g] (r + 2n numbers, see :func:`gust_projection`): ``pg`` (r + 2n,) is p now (state,
+    updated in place) and ``Pg_seq`` (n_steps, r + 2n) p at the end of each step. Width 0 (empty arrays) is no gust,
+    and then not a single operation differs from the gust-free kernel.
 
     Returns (status, steps_done): status OK, NON_FINITE or OVER_BOUND (state left at the last good step).
     """
@@ -164,6 +188,13 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
     blk_off, blk_len, lam_a, lam_b = km.blk_off, km.blk_len, km.lam_a, km.lam_b
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
+    exact, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem = km.exact, km.ex_psi, km.ex_w, km.ex_run, km.ex_w_elem, km.ex_n_elem
+    ex_work = np.zeros((3 * q.shape[0] + 7, ex_psi.shape[1]))
+    ex_Jv = np.zeros((q.shape[0], q.shape[0]))
+    ex_h = np.zeros(q.shape[0])
+    ex_b = np.zeros(q.shape[0])
+    q_new = np.zeros(q.shape[0])
+    ex_acc = np.zeros(q.shape[0])  # exact: last step's acceleration, the Newton predictor
     n = q.shape[0]
     r = xi.shape[0]
     h = 0.5 * dt
@@ -185,6 +216,8 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
     la = np.zeros(lam_a.shape[0])
     lb = np.zeros(lam_a.shape[0])
     U_prev = -1.0
+    ng = Pg_seq.shape[1]
+    fg = np.zeros(n)
     for step in range(U_seq.shape[0]):
         U = U_seq[step]
         if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
@@ -214,19 +247,42 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
             for j in range(n):
                 acc += (Gv[k, j] - U * h * Gs[k, j]) * v[j]
             tmp_r[k] = acc
+        if ng > 0:  # gust: xi input Gg (w_g' - w_g), force U Qg (w_g + w_g')/2 + Qgd (w_g' - w_g)/dt (projected)
+            for k in range(r):
+                tmp_r[k] += Pg_seq[step, k] - pg[k]
+            for i in range(n):
+                fg[i] = (0.5 * U * (pg[r + i] + Pg_seq[step, r + i])
+                         + (Pg_seq[step, r + n + i] - pg[r + n + i]) / dt)
         _block_apply(blk_off, blk_len, la, lb, tmp_r, c0, True, h)
         for i in range(n):
             acc = 0.0
             for k in range(r):
                 acc += Qxi[i, k] * (xi[k] + c0[k])
-            xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
+            if exact:  # the dead tip force is state dependent: in the residual
+                xi_part[i] = 0.5 * U * acc
+            else:
+                xi_part[i] = 0.5 * U * acc + F_seq[step] * f_vec[i]
+            if ng > 0:
+                xi_part[i] += fg[i]
+        big_prev = 0.0
         for i in range(n):
             x[i] = v[i]
+            if exact:
+                x[i] += dt * ex_acc[i]
         for it in range(MAX_ITER):
             for i in range(n):
                 vm[i] = 0.5 * (x[i] + v[i])
                 qm[i] = q[i] + h * vm[i]
             Mt[:, :] = M0
+            if exact:  # M0 holds m I + Ma: swap m I for M(q*) at the midpoint; h(q*, v*) and B(1; q*);
+                # dh/dv for the Newton matrix at the first iteration of the step only
+                if it == 0:
+                    ex_Jv[:, :] = 0.0
+                for i in range(n):
+                    Mt[i, i] -= m_scale
+                    ex_h[i] = 0.0
+                exact_eval(qm, vm, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem, m_scale, it == 0, Mt, ex_h, ex_b,
+                           ex_Jv, ex_work)
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)
             for i in range(n):
@@ -235,12 +291,18 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
                     acc += Mt[i, j] * (x[j] - v[j]) / dt + Cu[i, j] * vm[j] + Ku[i, j] * qm[j] + QW[i, j] * x[j]
                     if mass_mode == MASS_LITERAL:  # [D2 + dM] z^{t+1} + D1 z^t: dM multiplies the new state only
                         acc += (Mt[i, j] - M0[i, j]) * v[j] / dt
+                if exact:
+                    acc += ex_h[i] - F_seq[step] * km.ex_length * ex_b[i]
                 res[i] = acc
             if use_k or use_m:
                 _nl_force(qm, vm, K_nl, P_nl, k_scale, m_scale, use_k, use_m, res)
             for i in range(n):
                 for j in range(n):
                     J[i, j] = Mt[i, j] / dt + J_lin[i, j]
+            if exact:  # the velocity-quadratic inertia dominates the Newton error: dh/dx = (1/2) dh/dv
+                for i in range(n):
+                    for j in range(n):
+                        J[i, j] += 0.5 * ex_Jv[i, j]
             _solve_inplace(J, res)
             scale = 1e-12
             big = 0.0
@@ -250,11 +312,17 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
                 big = max(big, abs(res[i]))
             if big <= tol * scale:
                 break
+            # exact: linear convergence with ratio r = big / big_prev leaves an error of about big r / (1 - r)
+            # after this update; stop when that is below the tolerance (saves the confirming evaluation)
+            if exact and it > 0 and big < 0.5 * big_prev and big * big <= tol * scale * (big_prev - big):
+                break
+            big_prev = big
         tip = 0.0
         finite = True
         for j in range(n):
             qn = q[j] + h * (x[j] + v[j])
             tip += tip_vec[j] * qn
+            q_new[j] = qn
             finite = finite and np.isfinite(qn) and np.isfinite(x[j])
         for k in range(r):
             acc = c0[k]
@@ -262,36 +330,62 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out):
                 acc -= W[k, j] * x[j]
             tmp_r[k] = acc
             finite = finite and np.isfinite(acc)
+        if exact and finite:
+            tip = exact_tip(q_new, ex_psi, ex_w)
         if not finite:
             return NON_FINITE, step
         if abs(tip) > tip_bound:
             return OVER_BOUND, step
         for j in range(n):
             q[j] += h * (x[j] + v[j])
+            if exact:
+                ex_acc[j] = (x[j] - v[j]) / dt
             v[j] = x[j]
         for k in range(r):
             xi[k] = tmp_r[k]
+        for j in range(ng):
+            pg[j] = Pg_seq[step, j]
         tip_out[step] = tip
     return OK, U_seq.shape[0]
 
 
+def gust_projection(km: KernelModel) -> np.ndarray:
+    """(r + 2n, km) matrix [Gg; Qg; Qgd]: the gust upwash at the collocation points as the kernel sees it."""
+    return np.ascontiguousarray(np.vstack([km.Gg, km.Qg, km.Qgd]))
+
+
+@njit(cache=True, fastmath=True)
+def project_gust(G, P, out):
+    """out[s] = P @ G[s] for each step s, row by row (the same arithmetic whatever the number of rows, so a block
+    march and step-by-step marches see bit-identical inputs)."""
+    for s in range(G.shape[0]):
+        for i in range(P.shape[0]):
+            acc = 0.0
+            for j in range(P.shape[1]):
+                acc += P[i, j] * G[s, j]
+            out[s, i] = acc
+
+
 @njit(cache=True)
-def march_batch(q, v, xi, U_runs, F_runs, active, km, tip_out, status_out):
-    """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps). Runs with
-    active[b] False are skipped; a run that leaves the physical range gets its status and is deactivated."""
+def march_batch(q, v, xi, U_runs, F_runs, active, km, tip_out, status_out, pg, Pg_runs):
+    """Advance independent runs along the leading axis; U_runs, F_runs (B, n_steps), projected gust pg (B, k) and
+    Pg_runs (B, n_steps, k) (k = 0: none; see :func:`march`). Runs with active[b] False are skipped; a run that leaves the physical
+    range gets its status and is deactivated."""
     for b in range(q.shape[0]):
         if not active[b]:
             continue
-        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], km, tip_out[b])
+        st, _ = march(q[b], v[b], xi[b], U_runs[b], F_runs[b], km, tip_out[b], pg[b], Pg_runs[b])
         status_out[b] = st
         if st != OK:
             active[b] = False
 
 
 @njit(cache=True)
-def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
+def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pre, q_post, v_post, xi_post,
+                  pg, Pg_seq):
     """:func:`march` over segments ending at the increasing step counts ``ends`` (each >= 1 step), keeping
-    the state before and after the last step of each segment (for the aero force at a sample).
+    the state before and after the last step of each segment (for the aero force at a sample). Gust ``pg``,
+    ``Pg_seq`` as in :func:`march`.
 
     Returns (status, steps_done, segments_done); on failure the state is at the last good step.
     """
@@ -299,13 +393,15 @@ def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pr
     for s in range(ends.shape[0]):
         end = ends[s]
         if end - 1 > start:
-            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1])
+            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1],
+                             pg, Pg_seq[start:end - 1])
             if st != OK:
                 return st, start + done, s
         q_pre[s] = q
         v_pre[s] = v
         xi_pre[s] = xi
-        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end])
+        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end],
+                         pg, Pg_seq[end - 1:end])
         if st != OK:
             return st, end - 1, s
         q_post[s] = q

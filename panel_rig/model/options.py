@@ -5,13 +5,19 @@ Every layer (stepper, node parameters, CLI choices, benchmarks, reports) derives
 
 from __future__ import annotations
 
-#: structural variant -> (stiffness nonlinearity F_K on, inertia nonlinearity dM and F_M on) (Eqs. 21-22)
-VARIANTS: dict[str, tuple[bool, bool]] = {
+#: the cubic (third-order) structure's variants -> (stiffness nonlinearity F_K on, inertia nonlinearity dM and
+#: F_M on) (Eqs. 21-22)
+CUBIC_VARIANTS: dict[str, tuple[bool, bool]] = {
     "full": (True, True),
     "stiffness": (True, False),
     "inertia": (False, True),
     "linear": (False, False),
 }
+#: the geometrically exact (elastica) structure: slope-angle kinematics, no expansion (model/elastica.py)
+EXACT_VARIANT = "exact"
+#: every structural variant -> (use_k, use_m) of the cubic kernel terms; ``exact`` runs neither (its
+#: nonlinearity is the exact kinematics, not the cubic tensors)
+VARIANTS: dict[str, tuple[bool, bool]] = {**CUBIC_VARIANTS, EXACT_VARIANT: (False, False)}
 DEFAULT_VARIANT = "full"
 #: the paper's four variants of the cubic (third-order) inextensible beam (Sec. 4.1)
 PAPER_VARIANTS: tuple[str, ...] = ("full", "stiffness", "inertia", "linear")

@@ -15,7 +15,10 @@ import numpy as np
 from panel_rig.config import PanelConfig
 from panel_rig.model import kernel
 from panel_rig.model.aeroelastic import AeroelasticModel
-from panel_rig.model.options import AERO_MODELS, SCHEMES, VARIANTS
+from panel_rig.model.elastica import exact_kinematics
+from panel_rig.model.elastica import shape as exact_shape
+from panel_rig.model.kernel_exact import exact_tip
+from panel_rig.model.options import AERO_MODELS, EXACT_VARIANT, SCHEMES, VARIANTS
 from panel_rig.model.structure import mode_shapes
 
 MASS_MODES = dict(zip(SCHEMES, (kernel.MASS_MIDPOINT, kernel.MASS_AT_START, kernel.MASS_LITERAL)))
@@ -49,6 +52,10 @@ class StepperMatrices:
     lam_a: np.ndarray
     lam_b: np.ndarray
     dx_m: float
+    # gust input (ContinuousAero.Qg, Qgd, Gg)
+    Qg: np.ndarray
+    Qgd: np.ndarray
+    Gg: np.ndarray
 
 
 def _blocks(Lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -74,13 +81,15 @@ def stepper_matrices(model: AeroelasticModel, aero: str) -> StepperMatrices:
     if aero == "none":
         z = np.zeros((n, n))
         e = np.zeros((0, n))
+        nb = model.lattice.n_body
         return StepperMatrices(M, z, np.diag(s.modal_damping_kgps), z, np.diag(s.modal_stiffness_npm), z,
                                np.zeros((n, 0)), e, e, np.zeros(0, np.int64), np.zeros(0, np.int64),
-                               np.zeros(0), np.zeros(0), model.lattice.dx_m)
+                               np.zeros(0), np.zeros(0), model.lattice.dx_m,
+                               np.zeros((n, nb)), np.zeros((n, nb)), np.zeros((0, nb)))
     ca = model.continuous(model.cfg.rom_modes if aero == "rom" else None)
     off, size, a, b = _blocks(ca.Lam)
     return StepperMatrices(M + ca.Ma, ca.Ma, np.diag(s.modal_damping_kgps), ca.Ca, np.diag(s.modal_stiffness_npm),
-                           ca.Ka, ca.Qxi, ca.Gv, ca.Gs, off, size, a, b, ca.dx_m)
+                           ca.Ka, ca.Qxi, ca.Gv, ca.Gs, off, size, a, b, ca.dx_m, ca.Qg, ca.Qgd, ca.Gg)
 
 
 @dataclass(frozen=True)
@@ -107,6 +116,8 @@ class Stepper:
             raise ValueError(f"aero must be one of {AERO_MODELS}, got {aero!r}")
         if scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}")
+        if variant == EXACT_VARIANT and scheme != "implicit":
+            raise ValueError("the exact structure runs the implicit (midpoint) scheme only")
         self.cfg = cfg
         self.model = model if model is not None else AeroelasticModel(cfg)
         self.variant, self.aero, self.scheme = variant, aero, scheme
@@ -116,11 +127,21 @@ class Stepper:
         use_k, use_m = VARIANTS[variant]
         self._tip_vec = mode_shapes(s.n_modes, np.array([1.0]))[:, 0]
         m = self.mats
+        self.exact = variant == EXACT_VARIANT
+        kin = exact_kinematics(s.n_modes) if self.exact else None
+        self._kin = kin
         self.kernel_model = kernel.KernelModel(
             self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b,
             s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg, use_k, use_m, MASS_MODES[scheme],
             cfg.panel_length_m * self._tip_vec,  # generalised force per N/m at the trailing edge
-            self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL)
+            self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
+            m.Qg, m.Qgd, m.Gg,  # gust input
+            # exact (elastica) structure
+            *((True, kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem, cfg.panel_length_m)
+              if self.exact else ()))
+        self._gust_proj = kernel.gust_projection(self.kernel_model)  # (r + 2n, km): what the kernel needs of w_g
+        kernel.project_gust(np.zeros((1, self._gust_proj.shape[1])), self._gust_proj,
+                            np.zeros((1, self._gust_proj.shape[0])))  # compile / load now
         self.reset()
 
     # ---- state ------------------------------------------------------------------------------------
@@ -130,54 +151,116 @@ class Stepper:
         self.q = np.zeros(n) if q is None else np.array(q, dtype=float)
         self.qdot = np.zeros(n) if qdot is None else np.array(qdot, dtype=float)
         self.xi = np.zeros(self.mats.Qxi.shape[1])
+        self.wg = np.zeros(self.n_colloc)  # vertical gust at the collocation points now, m/s (part of the state)
+        self._pg = np.zeros(self._gust_proj.shape[0])  # its projection [Gg; Qg; Qgd] w_g (the kernel's view)
         self.time_s = 0.0
         self.steps = 0
-        self._last = (0.0, np.zeros(n), np.zeros(n), np.zeros_like(self.xi))  # U, q, v, xi before the last step
+        # U, q, v, xi, w_g before the last step, and w_g after it
+        self._last = (0.0, np.zeros(n), np.zeros(n), np.zeros_like(self.xi), self.wg.copy(), self.wg.copy())
 
     @property
     def n_modes(self) -> int:
         return self.q.shape[0]
 
     @property
+    def n_colloc(self) -> int:
+        """Number of collocation points (vortex elements on airfoil + panel): the gust input's width."""
+        return self.model.lattice.n_body
+
+    @property
+    def x_colloc_m(self) -> np.ndarray:
+        """Collocation points, m from the airfoil leading edge: where a gust field is sampled."""
+        return self.model.lattice.x_colloc_m
+
+    def _gust(self, gust_upwash_mps: np.ndarray | None, n_steps: int) -> np.ndarray:
+        """The per-step gust upwash: (n_steps, km), or (n_steps, 0) for no gust at all."""
+        if gust_upwash_mps is None:
+            if not np.any(self.wg):
+                return np.zeros((n_steps, 0))
+            return np.zeros((n_steps, self.n_colloc))  # the gust stops: w_g returns to 0
+        g = np.ascontiguousarray(gust_upwash_mps, dtype=float)
+        if g.shape != (n_steps, self.n_colloc):
+            raise ValueError(f"gust upwash must have shape ({n_steps}, {self.n_colloc}), got {g.shape}")
+        return g
+
+    def _projected(self, gust: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(kernel gust state, per-step projected gust) for a (n_steps, km or 0) upwash array."""
+        if not gust.shape[1]:
+            return np.zeros(0), np.zeros((gust.shape[0], 0))
+        out = np.empty((gust.shape[0], self._gust_proj.shape[0]))
+        kernel.project_gust(gust, self._gust_proj, out)
+        return self._pg, out
+
+    def _gust_done(self, gust: np.ndarray, done: int) -> None:
+        """After ``done`` steps of a march with this gust array: the upwash state follows."""
+        if gust.shape[1] and done:
+            self.wg = gust[done - 1].copy()
+
+    @property
     def tip_w_over_L(self) -> float:
-        """Trailing-edge deflection w/L = sum q_i phi_i(1)."""
+        """Trailing-edge deflection w/L = sum q_i phi_i(1) (exact: int_0^1 sin theta, so |w/L| <= 1)."""
+        if self.exact:
+            return float(exact_tip(self.q, self._kin.psi, self._kin.quad.w))
         return float(self._tip_vec @ self.q)
 
     def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
-        """w/L along the panel at x/L."""
+        """w/L along the panel at x/L (exact: at arc length s = x/L of the undeformed panel; the point's
+        chordwise position is then :meth:`shape_xw_over_L`)."""
+        if self.exact:
+            return exact_shape(self.q, np.asarray(x_over_L, dtype=float))[1]
         return self.q @ mode_shapes(self.n_modes, np.asarray(x_over_L, dtype=float))
+
+    def shape_xw_over_L(self, s_over_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x/L, w/L) of the material points at arc length s/L (cubic variants: x = s - 1/2 int w'^2 is not
+        tracked by the kernel, so x = s is returned for them)."""
+        s_ = np.asarray(s_over_L, dtype=float)
+        if self.exact:
+            return exact_shape(self.q, s_)
+        return s_.copy(), self.shape_w_over_L(s_)
 
     @property
     def aero_force_npm(self) -> np.ndarray:
         """Generalised aerodynamic force on each mode over the last step (midpoint), N per metre span."""
-        U, q0, v0, xi0 = self._last
+        U, q0, v0, xi0, wg0, wg1 = self._last
         m = self.mats
         vm, qm = 0.5 * (self.qdot + v0), 0.5 * (self.q + q0)
         acc = (self.qdot - v0) / self.dt_s
         xim = 0.5 * (self.xi + xi0)
-        return -m.Ma @ acc - U * m.Ca @ vm - U * U * m.Ka @ qm + U * m.Qxi @ xim
+        force = -m.Ma @ acc - U * m.Ca @ vm - U * U * m.Ka @ qm + U * m.Qxi @ xim
+        if np.any(wg0) or np.any(wg1):
+            force = force + 0.5 * U * m.Qg @ (wg0 + wg1) + m.Qgd @ (wg1 - wg0) / self.dt_s
+        return force
 
     # ---- marching ---------------------------------------------------------------------------------
-    def advance(self, n_steps: int, airspeed_mps: float | np.ndarray, tip_force_npm: float | np.ndarray = 0.0
-                ) -> np.ndarray:
+    def advance(self, n_steps: int, airspeed_mps: float | np.ndarray, tip_force_npm: float | np.ndarray = 0.0,
+                gust_upwash_mps: np.ndarray | None = None) -> np.ndarray:
         """Advance n_steps; inputs are scalars or per-step arrays. Returns tip w/L after each step.
 
+        ``gust_upwash_mps`` (n_steps, km): the vertical gust (m/s, positive up) at each collocation point at the
+        end of each step (the field is the caller's: e.g. a convected turbulence field); None: no gust.
         Raises DivergenceError (state kept at the last finite step) if the march leaves the physical range.
         """
         U = np.broadcast_to(np.asarray(airspeed_mps, dtype=float), (n_steps,)).copy()
         F = np.broadcast_to(np.asarray(tip_force_npm, dtype=float), (n_steps,)).copy()
         if not (np.all(np.isfinite(U)) and np.all(U >= 0) and np.all(np.isfinite(F))):
             raise ValueError("airspeed must be finite and >= 0, tip force finite")
+        G = self._gust(gust_upwash_mps, n_steps)
+        if not np.all(np.isfinite(G)):
+            raise ValueError("gust upwash must be finite")
         tip = np.empty(n_steps)
         if n_steps > 1:
-            self._march(U[:-1], F[:-1], tip[:-1])
+            self._march(U[:-1], F[:-1], tip[:-1], G[:-1])
         if n_steps > 0:
-            self._last = (float(U[-1]), self.q.copy(), self.qdot.copy(), self.xi.copy())
-            self._march(U[-1:], F[-1:], tip[-1:])
+            wg0 = self.wg.copy()
+            self._last = (float(U[-1]), self.q.copy(), self.qdot.copy(), self.xi.copy(), wg0,
+                          G[-1].copy() if G.shape[1] else wg0)
+            self._march(U[-1:], F[-1:], tip[-1:], G[-1:])
         return tip
 
-    def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray) -> None:
-        status, done = kernel.march(self.q, self.qdot, self.xi, U, F, self.kernel_model, tip)
+    def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray, G: np.ndarray) -> None:
+        pg, P = self._projected(G)
+        status, done = kernel.march(self.q, self.qdot, self.xi, U, F, self.kernel_model, tip, pg, P)
+        self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
         if status != kernel.OK:
@@ -185,12 +268,13 @@ class Stepper:
                 f"|tip w/L| exceeded {self.cfg.max_tip_w_over_L}")
             raise DivergenceError(reason, self.time_s)
 
-    def step(self, airspeed_mps: float, tip_force_npm: float = 0.0) -> None:
-        """One physics step dt with these inputs."""
-        self.advance(1, airspeed_mps, tip_force_npm)
+    def step(self, airspeed_mps: float, tip_force_npm: float = 0.0, gust_upwash_mps: np.ndarray | None = None) -> None:
+        """One physics step dt with these inputs (gust: (km,) upwash at the end of the step, or None)."""
+        self.advance(1, airspeed_mps, tip_force_npm,
+                     None if gust_upwash_mps is None else np.asarray(gust_upwash_mps, float).reshape(1, -1))
 
     def advance_sampled(self, airspeed_mps: np.ndarray, tip_force_npm: np.ndarray, ends: np.ndarray,
-                        tip_bound: float | None = None) -> SampledRun:
+                        tip_bound: float | None = None, gust_upwash_mps: np.ndarray | None = None) -> SampledRun:
         """Advance len(airspeed_mps) steps in one compiled call, sampling the state after each step count in
         ``ends`` (strictly increasing, last = number of steps). Per-step inputs are trusted (finite, U >= 0).
 
@@ -207,20 +291,37 @@ class Stepper:
         q_pre, v_pre, q_post, v_post = (np.empty((k, n)) for _ in range(4))
         xi_pre, xi_post = np.empty((k, r)), np.empty((k, r))
         m = self.mats
+        G = self._gust(gust_upwash_mps, U.shape[0])
+        wg_start = self.wg.copy()
+        pg, P = self._projected(G)
         status, done, segs = kernel.march_sampled(
             self.q, self.qdot, self.xi, U, F, ends, self.kernel_model._replace(tip_bound=bound), tip,
-            q_pre, v_pre, xi_pre, q_post, v_post, xi_post)
+            q_pre, v_pre, xi_pre, q_post, v_post, xi_post, pg, P)
+        self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
+        # gust before / after the last step of each sample (only if there is any)
+        gusty = bool(G.shape[1]) or bool(np.any(wg_start))
+        if G.shape[1]:
+            last_steps = ends[:segs] - 1
+            wg_post = G[last_steps]
+            wg_pre = G[np.maximum(last_steps - 1, 0)]
+            if segs and last_steps[0] == 0:
+                wg_pre[0] = wg_start
+        else:
+            wg_pre = wg_post = np.broadcast_to(wg_start, (segs, wg_start.shape[0]))
         if segs:
             last = ends[segs - 1] - 1
-            self._last = (float(U[last]), q_pre[segs - 1].copy(), v_pre[segs - 1].copy(), xi_pre[segs - 1].copy())
+            self._last = (float(U[last]), q_pre[segs - 1].copy(), v_pre[segs - 1].copy(), xi_pre[segs - 1].copy(),
+                          wg_pre[segs - 1].copy(), wg_post[segs - 1].copy())
         # generalised aero force of each sample's last step (midpoint), as in aero_force_npm
         Us = U[ends[:segs] - 1][:, None]
         acc = (v_post[:segs] - v_pre[:segs]) / self.dt_s
         vm, qm = 0.5 * (v_post[:segs] + v_pre[:segs]), 0.5 * (q_post[:segs] + q_pre[:segs])
         xim = 0.5 * (xi_post[:segs] + xi_pre[:segs])
         aero = -acc @ m.Ma.T - Us * (vm @ m.Ca.T) - Us * Us * (qm @ m.Ka.T) + Us * (xim @ m.Qxi.T)
+        if gusty:
+            aero = aero + 0.5 * Us * ((wg_pre + wg_post) @ m.Qg.T) + (wg_post - wg_pre) @ m.Qgd.T / self.dt_s
         return SampledRun(status == kernel.OK, int(done), int(segs), tip[:done], q_post[:segs], v_post[:segs], aero)
 
 
@@ -236,6 +337,7 @@ class BatchStepper:
         self.q = np.zeros((n_runs, n))
         self.qdot = np.zeros((n_runs, n))
         self.xi = np.zeros((n_runs, r))
+        self.pg = np.zeros((n_runs, 0))  # no gust in sweeps (the kernel's width-0 path)
         self.active = np.ones(n_runs, dtype=np.bool_)
         self.status = np.zeros(n_runs, dtype=np.int64)
         self.time_s = 0.0
@@ -254,6 +356,7 @@ class BatchStepper:
         if not (np.all(np.isfinite(U)) and np.all(U >= 0) and np.all(np.isfinite(F))):
             raise ValueError("airspeed must be finite and >= 0, tip force finite")
         tip = np.full((B, n_steps), np.nan)
-        kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, self.t.kernel_model, tip, self.status)
+        kernel.march_batch(self.q, self.qdot, self.xi, U, F, self.active, self.t.kernel_model, tip, self.status,
+                           self.pg, np.zeros((B, n_steps, 0)))
         self.time_s += n_steps * self.t.dt_s
         return tip

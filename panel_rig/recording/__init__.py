@@ -1,12 +1,15 @@
 """rosbag2-compatible MCAP recording: writer, reader and crash recovery."""
 
-from panel_rig.recording.errors import RecordingError
-from panel_rig.recording.reader import find_mcap, has_summary, read_bag, topic_counts
+from panel_rig.recording.errors import CorruptBagError, RecordingError
+from panel_rig.recording.integrity import McapScan, scan_mcap
+from panel_rig.recording.reader import find_mcap, has_summary, read_bag, topic_counts, verify_bag
 from panel_rig.recording.recover import RecoverReport, main_bag_recover, recover_bag
 from panel_rig.recording.writer import BagWriter
 
 __all__ = [
     "BagWriter",
+    "CorruptBagError",
+    "McapScan",
     "RecordingError",
     "RecoverReport",
     "find_mcap",
@@ -14,5 +17,7 @@ __all__ = [
     "main_bag_recover",
     "read_bag",
     "recover_bag",
+    "scan_mcap",
     "topic_counts",
+    "verify_bag",
 ]

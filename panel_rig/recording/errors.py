@@ -2,6 +2,19 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class RecordingError(RuntimeError):
     """A bag cannot be created, written, read or recovered; the message says why."""
+
+
+class CorruptBagError(RecordingError):
+    """The bag's MCAP is damaged or incomplete; `panel-rig bag recover` rebuilds it.
+
+    `scan` is the :class:`panel_rig.recording.integrity.McapScan` that found it (None if the
+    damage showed while decoding)."""
+
+    def __init__(self, message: str, scan: Any = None) -> None:
+        super().__init__(message)
+        self.scan = scan

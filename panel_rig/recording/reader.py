@@ -10,7 +10,8 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.errors import CorruptBagError, RecordingError
+from panel_rig.recording.integrity import McapScan, scan_mcap
 from panel_rig.recording.metadata import METADATA_FILE, read_metadata
 
 
@@ -43,15 +44,42 @@ def has_summary(mcap_path: Path) -> bool:
 def read_bag(
     bag_dir: Path, topics: list[str] | None = None
 ) -> Iterator[tuple[str, str, int, Any]]:
-    """Yield (topic, type, stamp_ns, decoded message) in log-time order (mcap-ros2 decoder)."""
-    from mcap_ros2.reader import read_ros2_messages
+    """Yield (topic, type, stamp_ns, decoded message) in log-time order; chunk CRCs are checked.
+
+    Decoding goes through `mcap.reader.make_reader` with the mcap-ros2 `DecoderFactory`. A damaged
+    file raises RecordingError (never a parser exception); `verify_bag` says what is damaged.
+    """
+    from mcap_ros2.decoder import DecoderFactory
 
     path = find_mcap(bag_dir)
     try:
-        for m in read_ros2_messages(str(path), topics=topics):
-            yield m.channel.topic, m.schema.name, m.log_time_ns, m.ros_msg
-    except McapError as exc:
-        raise RecordingError(f"cannot read {path}: {exc}") from None
+        with open(path, "rb") as f:
+            reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+            for schema, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+                yield channel.topic, schema.name if schema else "", message.log_time, decoded
+    except RecordingError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - corrupt bytes fail anywhere in the parser/decoder
+        raise CorruptBagError(
+            f"cannot read {path} ({type(exc).__name__}); run `panel-rig bag recover {bag_dir}`"
+        ) from None
+
+
+def verify_bag(bag_dir: Path) -> McapScan:
+    """Scan the bag's MCAP (every chunk CRC, summary, index); raise CorruptBagError if not intact.
+
+    The error is one line: the first problem (chunk index, byte offset, time range), how many more,
+    and the `panel-rig bag recover` command that rebuilds the bag from its intact chunks.
+    """
+    path = find_mcap(bag_dir)
+    scan = scan_mcap(path)
+    if not scan.ok:
+        if scan.truncated and not scan.bad_chunks:
+            what = f"{path} has no summary (recorder killed?)"
+        else:
+            what = scan.summary_line().replace(f"{path}: ", f"{path} is corrupt: ", 1)
+        raise CorruptBagError(f"{what}; run `panel-rig bag recover {bag_dir}`", scan)
+    return scan
 
 
 def topic_counts(bag_dir: Path) -> dict[str, int]:

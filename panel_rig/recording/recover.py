@@ -1,8 +1,11 @@
-"""Rebuild a readable bag from an MCAP whose writer died (SIGKILL: no summary, no footer).
+"""Rebuild a readable bag from a damaged MCAP: a killed writer (no summary) or corrupt bytes.
 
-Every complete record is read in file order (chunks are checked against their CRC); what follows
-the first damaged or truncated record is unrecoverable and dropped. The original file is kept as
-`<file>.broken`; a new complete MCAP takes its name and metadata.yaml is (re)written.
+The file is scanned by :func:`panel_rig.recording.integrity.scan_mcap`: every chunk is checked
+against its CRC, broken record framing is skipped up to the next chunk that verifies, a truncated
+tail is dropped. Every message of the intact chunks is written into a new complete MCAP (schemas and
+channels from the intact chunks, or from the summary if its CRC holds); what was dropped (chunks,
+their byte offsets, time ranges and message counts, unreadable byte ranges) is reported. The
+original file is kept as `<file>.broken`; the new one takes its name and metadata.yaml is rewritten.
 """
 
 from __future__ import annotations
@@ -12,30 +15,20 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import yaml
-from mcap.records import (
-    Channel,
-    Chunk,
-    DataEnd,
-    Footer,
-    Header,
-    Message,
-    Metadata,
-    Schema,
-)
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
 from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.integrity import McapScan, scan_mcap
 from panel_rig.recording.metadata import (
     BagSummary,
     TopicInfo,
     dump_metadata,
     write_metadata,
 )
-from panel_rig.recording.reader import find_mcap, has_summary
+from panel_rig.recording.reader import find_mcap
 from panel_rig.recording.writer import (
     LIBRARY,
     PARAMETERS_KEY,
@@ -53,68 +46,34 @@ class RecoverReport:
     was_complete: bool
     broken_path: Path | None = None
     messages: int = 0
-    chunks: int = 0
+    chunks: int = 0  # intact chunks the messages came from
     topic_counts: dict[str, int] = field(default_factory=dict)
-    skipped_messages: int = 0
-    bytes_discarded: int = 0
+    skipped_messages: int = 0  # in intact chunks, but of a channel whose definition was lost
+    bytes_discarded: int = 0  # truncated tail
     stop_reason: str = ""
+    dropped: list[str] = field(default_factory=list)  # one line per dropped chunk / byte range / record
+    dropped_chunks: int = 0
+    dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
+    dropped_topic_counts: dict[str, int] = field(default_factory=dict)
 
     def line(self) -> str:
         """One-line human summary."""
         if self.was_complete:
             return f"{self.mcap_path}: already complete, {self.messages} messages; metadata ok"
-        return (
-            f"{self.mcap_path}: recovered {self.messages} messages in {len(self.topic_counts)} "
-            f"topics from {self.chunks} chunks; discarded {self.bytes_discarded} trailing bytes "
-            f"({self.stop_reason}); original kept as {self.broken_path}"
-        )
+        text = (f"{self.mcap_path}: recovered {self.messages} messages in {len(self.topic_counts)} "
+                f"topics from {self.chunks} chunks")
+        if self.dropped_chunks:
+            text += (f"; dropped {self.dropped_chunks} corrupt chunk{'s' if self.dropped_chunks > 1 else ''} "
+                     f"({self.dropped_messages} messages)")
+        if self.skipped_messages:
+            text += f"; skipped {self.skipped_messages} messages of lost channels"
+        if self.bytes_discarded:
+            text += f"; discarded {self.bytes_discarded} trailing bytes ({self.stop_reason})"
+        return text + f"; original kept as {self.broken_path}"
 
-
-@dataclass
-class _Scan:
-    profile: str = PROFILE
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    messages: list[Message] = field(default_factory=list)
-    metadata: list[Metadata] = field(default_factory=list)
-    chunks: int = 0
-    good_end: int = 0
-    complete: bool = False
-    stop_reason: str = "end of file"
-
-
-def _take(scan: _Scan, record: Any) -> None:
-    if isinstance(record, Header):
-        scan.profile = record.profile or PROFILE
-    elif isinstance(record, Schema):
-        scan.schemas.setdefault(record.id, record)
-    elif isinstance(record, Channel):
-        scan.channels.setdefault(record.id, record)
-    elif isinstance(record, Message):
-        scan.messages.append(record)
-    elif isinstance(record, Metadata) and record.name != "rosbag2":
-        scan.metadata.append(record)
-
-
-def _scan(path: Path) -> _Scan:
-    """Read every intact record; stop at the first truncated or corrupt one."""
-    scan = _Scan()
-    with open(path, "rb") as f:
-        reader = StreamReader(f, emit_chunks=True, record_size_limit=256 * 2**20)
-        try:
-            for record in reader.records:
-                if isinstance(record, Chunk):
-                    for inner in breakup_chunk(record, validate_crc=True):
-                        _take(scan, inner)
-                    scan.chunks += 1
-                elif isinstance(record, (DataEnd, Footer)):
-                    scan.complete = scan.complete or isinstance(record, Footer)
-                else:
-                    _take(scan, record)
-                scan.good_end = f.tell()
-        except Exception as exc:  # noqa: BLE001 - any parse failure marks the damaged tail
-            scan.stop_reason = f"{type(exc).__name__}: {exc}".strip().rstrip(":")
-    return scan
+    def lines(self) -> list[str]:
+        """The summary line, then one line per dropped chunk or byte range."""
+        return [self.line(), *(f"  dropped {d}" for d in self.dropped)]
 
 
 def _topic_info(channel: Channel, schema: Schema) -> TopicInfo:
@@ -131,12 +90,12 @@ def _topic_info(channel: Channel, schema: Schema) -> TopicInfo:
     )
 
 
-def _write_recovered(scan: _Scan, out_path: Path, summary: BagSummary) -> tuple[int, int]:
+def _write_recovered(scan: McapScan, out_path: Path, summary: BagSummary) -> tuple[int, int]:
     """Write every recovered message into a new MCAP; returns (written, skipped)."""
     written = skipped = 0
     with open(out_path, "xb") as stream:
         writer = Writer(stream, chunk_size=1024 * 1024, compression=CompressionType.NONE)
-        writer.start(profile=scan.profile, library=f"{LIBRARY}; recovered")
+        writer.start(profile=scan.profile or PROFILE, library=f"{LIBRARY}; recovered")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, tuple[int, TopicInfo]] = {}
         for cid, channel in scan.channels.items():
@@ -152,9 +111,14 @@ def _write_recovered(scan: _Scan, out_path: Path, summary: BagSummary) -> tuple[
             summary.topics.append(info)
             channel_ids[cid] = (new_id, info)
         for meta in scan.metadata:
+            if meta.name == "rosbag2":
+                continue
             writer.add_metadata(meta.name, dict(meta.metadata))
             if meta.name == PARAMETERS_RECORD:
-                params = {k: json.loads(v) for k, v in meta.metadata.items()}
+                try:
+                    params = {k: json.loads(v) for k, v in meta.metadata.items()}
+                except ValueError:  # damaged beyond what a CRC covers: keep the record, skip the copy
+                    continue
                 summary.custom_data[PARAMETERS_KEY] = json.dumps(params, sort_keys=True)
         for msg in sorted(scan.messages, key=lambda m: m.log_time):
             target = channel_ids.get(msg.channel_id)
@@ -181,19 +145,16 @@ def _free_name(path: Path) -> Path:
 
 
 def recover_bag(bag_dir: Path) -> RecoverReport:
-    """Make `bag_dir` a complete, readable bag again; never deletes the original data."""
+    """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data."""
     bag_dir = Path(bag_dir)
     mcap_path = find_mcap(bag_dir)
-    if has_summary(mcap_path):
-        scan = _scan(mcap_path)
-        report = RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages))
-        if not (bag_dir / "metadata.yaml").is_file():
-            summary = _summary_from_scan(scan, mcap_path.name)
-            write_metadata(bag_dir, summary)
-        return report
-    scan = _scan(mcap_path)
-    if scan.good_end == 0:
+    scan = scan_mcap(mcap_path)
+    if not scan.header_ok and not scan.chunks:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
+    if scan.ok:
+        if not (bag_dir / "metadata.yaml").is_file():
+            write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
+        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages))
     summary = BagSummary(file_name=mcap_path.name)
     tmp = _free_name(mcap_path.with_name(mcap_path.name + ".recovering"))
     try:
@@ -202,20 +163,32 @@ def recover_bag(bag_dir: Path) -> RecoverReport:
         tmp.unlink(missing_ok=True)
         raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
-    size = mcap_path.stat().st_size
     os.replace(mcap_path, broken)
     os.replace(tmp, mcap_path)
     write_metadata(bag_dir, summary)
-    return RecoverReport(
+    report = RecoverReport(
         bag_dir=bag_dir, mcap_path=mcap_path, was_complete=False, broken_path=broken,
-        messages=written, chunks=scan.chunks,
-        topic_counts={t.name: t.message_count for t in summary.topics},
-        skipped_messages=skipped, bytes_discarded=size - scan.good_end,
-        stop_reason=scan.stop_reason,
+        messages=written, chunks=sum(1 for c in scan.chunks if c.ok),
+        topic_counts={t.name: t.message_count for t in summary.topics if t.message_count},
+        skipped_messages=skipped,
     )
+    for p in scan.problems:
+        if scan.truncated and p is scan.problems[-1] and "file ends" in p.what:
+            report.bytes_discarded, report.stop_reason = scan.size - p.offset, "truncated record"
+        if p.chunk is not None:
+            report.dropped_chunks += 1
+            report.dropped_messages += max(p.chunk.messages, 0)
+            for cid, n in p.chunk.topic_counts.items():
+                topic = scan.channel_topic(cid)
+                report.dropped_topic_counts[topic] = report.dropped_topic_counts.get(topic, 0) + n
+            topics = ", ".join(f"{scan.channel_topic(c)} {n}" for c, n in sorted(p.chunk.topic_counts.items()))
+            report.dropped.append(scan.describe(p) + (f" [{topics}]" if topics else ""))
+        elif p.length:
+            report.dropped.append(scan.describe(p))
+    return report
 
 
-def _summary_from_scan(scan: _Scan, file_name: str) -> BagSummary:
+def _summary_from_scan(scan: McapScan, file_name: str) -> BagSummary:
     summary = BagSummary(file_name=file_name)
     infos: dict[int, TopicInfo] = {}
     for cid, channel in scan.channels.items():
@@ -227,6 +200,13 @@ def _summary_from_scan(scan: _Scan, file_name: str) -> BagSummary:
         if msg.channel_id in infos:
             infos[msg.channel_id].message_count += 1
             summary.note_stamp(msg.log_time)
+    for meta in scan.metadata:
+        if meta.name == PARAMETERS_RECORD:
+            try:
+                params = {k: json.loads(v) for k, v in meta.metadata.items()}
+            except ValueError:
+                continue
+            summary.custom_data[PARAMETERS_KEY] = json.dumps(params, sort_keys=True)
     return summary
 
 
@@ -244,5 +224,5 @@ def main_bag_recover(path: str) -> int:
     except OSError as exc:
         print(f"panel-rig bag recover: {path}: {exc.strerror or exc}", file=sys.stderr)
         return 1
-    print(report.line())
+    print("\n".join(report.lines()))
     return 0

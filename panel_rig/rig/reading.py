@@ -15,8 +15,8 @@ class Reading:
     time_s: float
     airspeed_mps: float
     shaker_force_npm: float
-    tip_w_m: float
-    tip_w_over_L: float
+    tip_w_m: float  # what the tip sensor reads (noise, resolution, bandwidth, latency; the truth if perfect)
+    tip_w_over_L: float  # the model's truth, as q (tip_displacement/truth = tip_w_over_L * L)
     q: np.ndarray
     qdot_per_s: np.ndarray
     aero_force_npm: np.ndarray

@@ -12,6 +12,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from panel_rig.rig.actuator import AirspeedActuator
+from panel_rig.rig.control import ControlActuator, ControlSettings, check_control_force, check_stamp
 from panel_rig.rig.reading import Reading, ReadingBlock, Sink
 from panel_rig.rig.safety import (
     SafetyLimits,
@@ -21,7 +22,9 @@ from panel_rig.rig.safety import (
     check_frequency,
     check_tip,
 )
+from panel_rig.rig.sensor import TipSensor
 from panel_rig.rig.shaker import Shaker
+from panel_rig.rig.turbulence import Turbulence
 
 log = logging.getLogger(__name__)
 
@@ -81,11 +84,22 @@ class TunnelSettings:
     max_rate_mps2: float = 0.0
 
 
+def tunnel_extras(cfg: Any, stepper: Any) -> dict[str, Any]:
+    """The turbulence and the tip sensor of a PanelConfig (``tunnel.turbulence.*``, ``sensor.*``) for a stepper,
+    as keyword arguments of :class:`Rig`; off / perfect when the configuration says so."""
+    from panel_rig.rig.sensor import SensorSettings
+    from panel_rig.rig.turbulence import TurbulenceSettings
+
+    ts = TurbulenceSettings.from_config(cfg)
+    turb = Turbulence(ts, stepper.dt_s, stepper.x_colloc_m, cfg.chord_m) if ts.on else None
+    return {"turbulence": turb, "sensor": TipSensor(SensorSettings.from_config(cfg), stepper.dt_s)}
+
+
 class Rig:
     """A wind tunnel around one stepper, advanced in whole physics steps of ``stepper.dt_s``.
 
     Bad commands are refused (counted, with a reason) and the rig carries on. A tip beyond
-    ``limits.max_tip_w_over_L`` or a diverging model aborts: set-point 0, shaker off, commands refused
+    ``limits.tip_limit(L)`` (wall contact) or a diverging model aborts: set-point 0, shaker off, commands refused
     until :meth:`reset`. A diverged model is reset to rest so no NaN ever leaves the rig.
     """
 
@@ -98,9 +112,13 @@ class Rig:
         sinks: Iterable[Sink] = (),
         divergence_errors: tuple[type[BaseException], ...] | None = None,
         logger: EventLogger | None = None,
+        control: ControlSettings | None = None,
+        turbulence: Turbulence | None = None,
+        sensor: TipSensor | None = None,
     ) -> None:
         """``logger``: where rig events (aborts, limits acting) go; anything with ``info``/``warning``/``error``
-        taking one string (the ROS node's logger, or by default this module's Python logger)."""
+        taking one string (the ROS node's logger, or by default this module's Python logger). ``control``: the
+        control actuator's settings (its force adds to the shaker's at the trailing edge)."""
         self.log: EventLogger = logger if logger is not None else log
         self.stepper = stepper
         self.dt_s = float(stepper.dt_s)
@@ -109,6 +127,7 @@ class Rig:
         tunnel = tunnel or TunnelSettings()
         self.actuator = AirspeedActuator(self.dt_s, tunnel.time_constant_s, tunnel.max_rate_mps2)
         self.shaker = Shaker(self.dt_s)
+        self.control = ControlActuator(self.dt_s, control, logger=self.log)  # closed-loop control (issue 13)
         self.sinks: list[Sink] = list(sinks)
         self._divergence = divergence_errors or _divergence_types()
         self.state = RUNNING
@@ -122,6 +141,11 @@ class Rig:
         self._time_s = 0.0
         self._last_force_npm = 0.0
         self._can_block = callable(getattr(stepper, "advance_sampled", None))
+        # the tunnel's turbulence (u' adds to the airspeed of the step, w' is the gust upwash along the chord) and
+        # the tip sensor between the model's truth and the reading; None: a quiet tunnel, a perfect sensor
+        self.turbulence = turbulence if turbulence is not None and turbulence.on else None
+        self.sensor = sensor if sensor is not None and not sensor.settings.perfect else None
+        self._sensed_tip_m = 0.0  # the sensor's filtered, delayed tip after the last step
 
     # ---- time -------------------------------------------------------------------------------
     @property
@@ -132,11 +156,18 @@ class Rig:
     def step(self) -> None:
         """One physics step with the actuator's airspeed and the shaker's force for that step."""
         airspeed = self.actuator.airspeed_mps
-        force = self.shaker.step()
-        self._last_force_npm = force
+        shaker = self.shaker.step()
+        self._last_force_npm = shaker
+        force = shaker + self.control.step(self._time_s)
         try:
-            self.stepper.step(airspeed, force)
+            if self.turbulence is not None:
+                u, w = self.turbulence.block(np.array([airspeed]))
+                self.stepper.step(max(airspeed + float(u[0]), 0.0), force, w[0])  # type: ignore[call-arg]
+            else:
+                self.stepper.step(airspeed, force)
             tip = float(self.stepper.tip_w_over_L)
+            if self.sensor is not None:
+                self._sensed_tip_m = float(self.sensor.push([tip * self.panel_length_m])[0])
             if not (math.isfinite(tip) and np.all(np.isfinite(self.stepper.q))):
                 raise FloatingPointError("model state is not finite")
         except self._divergence as exc:
@@ -147,7 +178,7 @@ class Rig:
             self.abort(f"model error at U = {airspeed:.3g} m/s: {type(exc).__name__}: {exc}")
         else:
             if self.state == RUNNING:
-                reason = check_tip(tip, self.limits)
+                reason = check_tip(tip, self.limits.tip_limit(self.panel_length_m))
                 if reason:
                     self.abort(reason)
         self.actuator.step()
@@ -203,35 +234,52 @@ class Rig:
             self.step()
         return self.reading()
 
-    def _inputs(self, n: int) -> tuple[list[float], list[float], list[float]]:
-        """Per-step airspeed (at the start of each step), shaker force and airspeed after it; advances
-        the actuator and the shaker by n steps (exactly as :meth:`step` does)."""
-        act, shaker = self.actuator, self.shaker
-        u_in, force, u_out = [0.0] * n, [0.0] * n, [0.0] * n
+    def _inputs(self, n: int) -> tuple[list[float], list[float], list[float], list[float]]:
+        """Per-step airspeed (at the start of each step), total force (shaker + control), airspeed after it and
+        the shaker's own force; advances the actuator, the shaker and the control actuator by n steps (exactly
+        as :meth:`step` does)."""
+        act, shaker, control = self.actuator, self.shaker, self.control
+        u_in, force, u_out, shaken = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
         for k in range(n):
             u_in[k] = act.airspeed_mps
-            force[k] = shaker.step()
+            shaken[k] = shaker.step()
+            force[k] = shaken[k] + control.step((self.steps + k) * self.dt_s)
             u_out[k] = act.step()
-        return u_in, force, u_out
+        return u_in, force, u_out, shaken
 
     def _march_block(self, counts: list[int]) -> tuple[ReadingBlock, int]:
         """March sum(counts) steps (every count >= 1) in one call; stops before an event (tip over the limit,
         divergence, model error). Returns the completed samples and the steps taken into the next one."""
         ends = np.cumsum(counts)
         n = int(ends[-1])
-        u0, phase0 = self.actuator.airspeed_mps, self.shaker.phase_rad
-        u_in, force, u_out = self._inputs(n)
-        bound = self.limits.max_tip_w_over_L if self.state == RUNNING else math.inf
+        u0, phase0, control0 = self.actuator.airspeed_mps, self.shaker.phase_rad, self.control.snapshot()
+        u_in, force, u_out, shaken = self._inputs(n)
+        bound = self.limits.tip_limit(self.panel_length_m) if self.state == RUNNING else math.inf
+        u_model, gust, snap = np.array(u_in), None, None
+        if self.turbulence is not None:
+            snap = self.turbulence.snapshot()
+            u_prime, gust = self.turbulence.block(u_model)
+            u_model = np.maximum(u_model + u_prime, 0.0)
         try:
-            run = self.stepper.advance_sampled(np.array(u_in), np.array(force), ends, bound)  # type: ignore[attr-defined]
+            kw = {} if gust is None else {"gust_upwash_mps": gust}
+            run = self.stepper.advance_sampled(u_model, np.array(force), ends, bound, **kw)  # type: ignore[attr-defined]
             done, samples = run.steps_done, run.samples_done
         except Exception:  # noqa: BLE001 (replayed step by step, where step() turns it into an abort)
             run, done, samples = None, 0, 0
-        if done < n:  # rewind the actuator and the shaker to the event
+        if done < n:  # rewind the actuator, the shaker and the turbulence to the event
             self.actuator.airspeed_mps, self.shaker.phase_rad = u0, phase0
+            self.control.restore(control0)
             self._inputs(done)
+            if snap is not None:
+                self.turbulence.restore(snap)  # type: ignore[union-attr]
+                self.turbulence.block(np.array(u_in[:done]))  # type: ignore[union-attr]
+        measured = None
+        if self.sensor is not None and run is not None and done:
+            sensed = self.sensor.push(run.tip_w_over_L[:done] * self.panel_length_m)
+            self._sensed_tip_m = float(sensed[-1])
+            measured = self.sensor.measure(sensed[ends[:samples] - 1])
         if done:
-            self._last_force_npm = force[done - 1]
+            self._last_force_npm = shaken[done - 1]
         start = self.steps
         self.steps += done
         self._time_s = self.steps * self.dt_s
@@ -241,8 +289,9 @@ class Rig:
             nm = len(np.atleast_1d(self.stepper.q))
             return ReadingBlock(empty, empty, empty, empty, empty, *(np.zeros((0, nm)),) * 3, state=self.state), done
         tip = run.tip_w_over_L[idx]
-        block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(force)[idx],
-                             tip * self.panel_length_m, tip, run.q, run.qdot_per_s, run.aero_force_npm, self.state)
+        block = ReadingBlock((start + ends[:samples]) * self.dt_s, np.asarray(u_out)[idx], np.asarray(shaken)[idx],
+                             tip * self.panel_length_m if measured is None else measured, tip, run.q, run.qdot_per_s,
+                             run.aero_force_npm, self.state)
         consumed = done - (int(ends[samples - 1]) if samples else 0)
         return block, consumed
 
@@ -299,10 +348,30 @@ class Rig:
             apply,
         )
 
+    # ---- closed-loop control (issue 13; logic in panel_rig.rig.control) ------------------------------------
+    def command_control(self, force_npm: float, stamp_s: float, arrival_s: float | None = None) -> CommandResult:
+        """Control force (N/m) answering the reading of simulated time ``stamp_s``, received at simulated time
+        ``arrival_s`` (default: now). Acts from the first step starting at or after its arrival; its age is
+        recorded. Rejected if not finite, beyond the saturation, or older than the watchdog timeout."""
+        arrival = self._time_s if arrival_s is None else float(arrival_s)
+
+        def check() -> str | None:
+            return check_control_force(force_npm, self.control.settings) or check_stamp(
+                stamp_s, arrival, self.control.settings)
+
+        return self._command("control/force_cmd", force_npm, check,
+                             lambda: self.control.command(float(force_npm), float(stamp_s), arrival))
+
+    def set_control(self, **changes: float) -> None:
+        """Change the control actuator's settings live (validated; raises ValueError)."""
+        self.control.configure(replace(self.control.settings, **changes))
+
+    # ---- emergency stop and reset ----------------------------------------------------------------------------
     def abort(self, reason: str = "operator abort") -> None:
-        """Emergency stop: set-point 0 (the actuator ramps down), shaker off, state aborted."""
+        """Emergency stop: set-point 0 (the actuator ramps down), shaker and control actuator off, state aborted."""
         self.actuator.setpoint_mps = 0.0
         self.shaker.reset()
+        self.control.reset()
         if self.state != ABORTED:
             self.abort_count += 1
             self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
@@ -314,6 +383,7 @@ class Rig:
         self.stepper.reset()
         self.actuator.reset()
         self.shaker.reset()
+        self.control.reset()
         self._last_force_npm = 0.0
         self.state = RUNNING
         self.abort_reason = ""
@@ -329,20 +399,24 @@ class Rig:
                              f"{act.setpoint_mps:g} -> {self.limits.max_airspeed_mps:g} m/s, tunnel ramping down")
             act.setpoint_mps = self.limits.max_airspeed_mps
         if self.state == RUNNING:
-            reason = check_tip(float(self.stepper.tip_w_over_L), self.limits)
+            reason = check_tip(float(self.stepper.tip_w_over_L), self.limits.tip_limit(self.panel_length_m))
             if reason:
                 self.abort(f"tip limit lowered below the present tip: {reason}")
 
     # ---- readings ------------------------------------------------------------------------------
     def reading(self) -> Reading:
-        """The current sample (copies of the model arrays)."""
+        """The current sample (copies of the model arrays); ``tip_w_m`` is the sensor's reading, ``tip_w_over_L``
+        the model's truth."""
         st = self.stepper
         tip = float(st.tip_w_over_L)
+        measured = tip * self.panel_length_m
+        if self.sensor is not None:
+            measured = float(self.sensor.measure(np.array([self._sensed_tip_m]))[0])
         return Reading(
             time_s=self._time_s,
             airspeed_mps=self.actuator.airspeed_mps,
             shaker_force_npm=self._last_force_npm,
-            tip_w_m=tip * self.panel_length_m,
+            tip_w_m=measured,
             tip_w_over_L=tip,
             q=np.array(st.q, dtype=float),
             qdot_per_s=np.array(st.qdot, dtype=float),

@@ -5,18 +5,42 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+#: Distance (m) from the panel's undeformed plane to the nearer tunnel wall. The paper gives no test-section
+#: size; 0.25 m is a panel on the centreline of a ~0.5 m-tall test section (set it to your tunnel).
+DEFAULT_WALL_CLEARANCE_M = 0.25
+
+
+def tip_limit_from_wall_clearance(wall_clearance_m: float, panel_length_m: float) -> float:
+    """|tip w/L| at which the trailing edge reaches the tunnel wall: clearance / L, and at most 1 (an
+    inextensible panel of length L cannot put its tip farther than L from its plane; with clearance >= L the
+    wall cannot be hit and the limit is the geometric one)."""
+    if not (math.isfinite(wall_clearance_m) and wall_clearance_m > 0 and math.isfinite(panel_length_m)
+            and panel_length_m > 0):
+        raise ValueError(f"wall clearance and panel length must be finite and > 0, got {wall_clearance_m!r}, "
+                         f"{panel_length_m!r}")
+    return min(1.0, wall_clearance_m / panel_length_m)
+
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run."""
+    """Operating envelope; commands outside it are refused, a tip beyond it aborts the run.
+
+    The tip limit has a physical basis: the run aborts when the trailing edge would touch the tunnel wall
+    (``wall_clearance_m``) or pass its own length (``max_tip_w_over_L`` = 1: no inextensible panel can),
+    whichever comes first (:meth:`tip_limit`; 0.926 for the paper's panel at the default clearance). The cubic
+    variants' LCOs (peaks ~1.2 just past flutter) abort there, as a real panel would hit the wall; the ``exact``
+    structure stays inside (|w/L| <= 1 by construction)."""
 
     max_airspeed_mps: float = 30.0
-    # |w/L| at the tip that aborts: above the largest LCO peaks of the cubic full model just past flutter (~1.2),
-    # below the stepper's own divergence bound sim.max_tip_w_over_L = 2.0, so the rig aborts first.
-    max_tip_w_over_L: float = 1.5
+    max_tip_w_over_L: float = 1.0
+    wall_clearance_m: float = DEFAULT_WALL_CLEARANCE_M
     max_force_npm: float = 10.0
     max_amplitude_npm: float = 10.0
     max_frequency_hz: float = 200.0
+
+    def tip_limit(self, panel_length_m: float) -> float:
+        """|tip w/L| that aborts a run of a panel of this length: wall contact or max_tip_w_over_L, the smaller."""
+        return min(self.max_tip_w_over_L, tip_limit_from_wall_clearance(self.wall_clearance_m, panel_length_m))
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -71,10 +95,10 @@ def check_frequency(frequency_hz: float, limits: SafetyLimits, dt_s: float | Non
     return None
 
 
-def check_tip(tip_w_over_L: float, limits: SafetyLimits) -> str | None:
-    """|w/L| at the tip within max_tip_w_over_L (a reason here means abort)."""
+def check_tip(tip_w_over_L: float, limit_w_over_L: float) -> str | None:
+    """|w/L| at the tip within the limit (:meth:`SafetyLimits.tip_limit`; a reason here means abort)."""
     if not math.isfinite(tip_w_over_L):
         return f"tip w/L is not finite ({tip_w_over_L!r})"
-    if abs(tip_w_over_L) > limits.max_tip_w_over_L:
-        return f"tip |w/L| = {abs(tip_w_over_L):.3g} exceeds the limit {limits.max_tip_w_over_L:g}"
+    if abs(tip_w_over_L) > limit_w_over_L:
+        return f"tip |w/L| = {abs(tip_w_over_L):.3g} exceeds the limit {limit_w_over_L:.3g}"
     return None

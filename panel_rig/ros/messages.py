@@ -95,15 +95,18 @@ def diagnostics_msg(stamp_ns: int, level: bytes, message: str, values: Mapping[s
 class ReadingMessages:
     """Reusable reading messages, refilled for each sample (no per-sample message construction)."""
 
-    def __init__(self, names: Sequence[str], trailing_edge_x_m: float) -> None:
+    def __init__(self, names: Sequence[str], trailing_edge_x_m: float, panel_length_m: float = 1.0) -> None:
         self.tip = PointStamped(header=header(0), point=Point(x=float(trailing_edge_x_m)))
+        self.truth = PointStamped(header=header(0), point=Point(x=float(trailing_edge_x_m)))  # the model's tip
+        self.panel_length_m = float(panel_length_m)
         self.modal = JointState(header=header(0), name=list(names))
         self.airspeed = Vector3Stamped(header=header(0))
         self._clock = Clock()
         self._marker: Marker | None = None
         self._marker_aborted = False
         self.modal.position = self.modal.velocity = self.modal.effort = [0.0] * len(self.modal.name)
-        self._stamps = (self.tip.header.stamp, self.modal.header.stamp, self.airspeed.header.stamp)
+        self._stamps = (self.tip.header.stamp, self.modal.header.stamp, self.airspeed.header.stamp,
+                        self.truth.header.stamp)
         self._templates()
 
     def _templates(self) -> None:
@@ -128,12 +131,13 @@ class ReadingMessages:
         self._clock_tpl = CdrTemplate(self._clock, lambda m: m.clock, [], [])
         self.templated = all(t.ok for t in self._tpl)
 
-    def encode(self, block: ReadingBlock, offset_ns: int = 0) -> Iterator[tuple[int, bytes, bytes, bytes]]:
-        """For each sample: (stamp ns = simulated time + ``offset_ns``, CDR bytes of tip_displacement,
-        modal_states, airspeed). Non-finite values become 0. The message objects (:attr:`tip`, ...) keep their
-        type and layout for recorders."""
+    def encode(self, block: ReadingBlock, offset_ns: int = 0) -> Iterator[tuple[int, bytes, bytes, bytes, bytes]]:
+        """For each sample: (stamp ns = simulated time + ``offset_ns``, CDR bytes of tip_displacement (the
+        sensor's reading), modal_states, airspeed, tip_displacement/truth (the model's tip, w/L * L)). Non-finite
+        values become 0. The message objects (:attr:`tip`, ...) keep their type and layout for recorders."""
         ns_all = [stamp_ns(t) + offset_ns for t in block.time_s.tolist()]
         tip_z, airspeed = _finite(block.tip_w_m), _finite(block.airspeed_mps)
+        truth_z = _finite(np.asarray(block.tip_w_over_L, dtype=float) * self.panel_length_m)
         q, qdot, effort = _finite(block.q), _finite(block.qdot_per_s), _finite(block.aero_force_npm)
         if self.templated:
             t_tip, t_modal, t_air = self._tpl
@@ -141,19 +145,21 @@ class ReadingMessages:
                 sec, nanosec = divmod(ns, 1_000_000_000)
                 yield (ns, t_tip.pack(sec, nanosec, ((tip_z[i],),)),
                        t_modal.pack(sec, nanosec, (q[i], qdot[i], effort[i])),
-                       t_air.pack(sec, nanosec, ((airspeed[i],),)))
+                       t_air.pack(sec, nanosec, ((airspeed[i],),)),
+                       t_tip.pack(sec, nanosec, ((truth_z[i],),)))
             return
         from rclpy.serialization import serialize_message
 
-        tip, modal, air = self.tip, self.modal, self.airspeed
+        tip, modal, air, truth = self.tip, self.modal, self.airspeed, self.truth
         for i, ns in enumerate(ns_all):
             sec, nanosec = divmod(ns, 1_000_000_000)
             for st in self._stamps:
                 st.sec, st.nanosec = sec, nanosec
             tip.point.z = tip_z[i]
+            truth.point.z = truth_z[i]
             modal.position, modal.velocity, modal.effort = q[i], qdot[i], effort[i]
             air.vector.x = airspeed[i]
-            yield ns, serialize_message(tip), serialize_message(modal), serialize_message(air)
+            yield ns, serialize_message(tip), serialize_message(modal), serialize_message(air), serialize_message(truth)
 
     def clock_bytes(self, stamp_ns: int) -> bytes | Clock:
         """/clock at this stamp: CDR bytes (or the refilled message if no template)."""

@@ -20,14 +20,8 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PointStamped, Vector3Stamped
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
+from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -42,11 +36,12 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
+from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
-from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings
+from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
-from panel_rig.ros.params import LIMIT_FIELDS, NODE_PARAMS, check_node_params
+from panel_rig.ros.params import CONTROL_FIELDS, LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
 
 NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -54,6 +49,7 @@ LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 SHAPE_POINTS = 31
 FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics)
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
+LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
 
 
@@ -68,34 +64,6 @@ def default_stepper_factory(cfg: PanelConfig, variant: str, aero: str) -> Steppe
     except ImportError as exc:
         raise StartupError(f"model stepper unavailable: {exc}") from exc
     return Stepper(cfg, variant=variant, aero=aero)
-
-
-def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
-                ) -> ParameterDescriptor:
-    """A statically typed descriptor (type of the default) with its range and read-only flag."""
-    kind = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-            float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}[type(default)]
-    d = ParameterDescriptor(type=kind, description=description + ("; read-only: restart to change" if read_only else ""),
-                            read_only=read_only)
-    if kind == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
-        d.floating_point_range = [FloatingPointRange(from_value=float(-math.inf if lo is None else lo),
-                                                     to_value=float(math.inf if hi is None else hi), step=0.0)]
-    elif kind == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
-        d.integer_range = [IntegerRange(from_value=int(-(2**63) if lo is None else lo),
-                                        to_value=int(2**63 - 1 if hi is None else hi), step=1)]
-    return d
-
-
-def parameter_table() -> dict[str, tuple[Any, ParameterDescriptor]]:
-    """Every node parameter, physics and node's own: name -> (default, descriptor)."""
-    defaults = PanelConfig()
-    table: dict[str, tuple[Any, ParameterDescriptor]] = {}
-    for key, spec in SCHEMA.items():
-        default = getattr(defaults, spec.field)
-        table[key] = (default, _descriptor(default, f"physics ({spec.rule})", True, spec.lo, spec.hi))
-    for name, p in NODE_PARAMS.items():
-        table[name] = (p.default, _descriptor(p.default, p.description, not p.live, p.lo, p.hi))
-    return table
 
 
 class RigNode(Node):
@@ -122,7 +90,11 @@ class RigNode(Node):
             stepper.reset()
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
-        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel, logger=self.get_logger())
+        control = ControlSettings(**{f: p[k] for k, f in CONTROL_FIELDS.items()})
+        # the tunnel's turbulence and the tip sensor (physics config tunnel.turbulence.*, sensor.*)
+        extras = tunnel_extras(self.cfg, stepper) if hasattr(stepper, "x_colloc_m") else {}
+        self.rig = Rig(stepper, self.cfg.panel_length_m, limits=limits, tunnel=tunnel, logger=self.get_logger(),
+                       control=control, **extras)
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
         self._shape_period_s = 1.0 / p["shape_rate_hz"]
@@ -137,15 +109,16 @@ class RigNode(Node):
 
         # readings out (sensor-data QoS), commands in (reliable)
         sensor = qos_profile_sensor_data
-        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)
+        self.pub_tip = self.create_publisher(PointStamped, "tip_displacement", sensor)  # through the sensor model
+        self.pub_truth = self.create_publisher(PointStamped, "tip_displacement/truth", sensor)  # the model's tip
         self.pub_modal = self.create_publisher(JointState, "modal_states", sensor)
         self.pub_airspeed = self.create_publisher(Vector3Stamped, "airspeed", sensor)
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
-        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m)
+        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
-                                                                        self.pub_shape, self.pub_diag)}
+                                                                        self.pub_shape, self.pub_diag, self.pub_truth)}
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -156,6 +129,7 @@ class RigNode(Node):
             self.create_subscription(Float64, topic, self._command_callback(topic, fn), COMMAND_QOS)
             for topic, fn in commands.items()
         ]
+        self._init_control()
         self.create_service(Trigger, "reset", self._on_reset)
         self.create_service(Trigger, "abort", self._on_abort)
 
@@ -226,15 +200,24 @@ class RigNode(Node):
             )
         return cfg, node_values
 
+    def _as_declared(self, prm: Parameter) -> Parameter:
+        """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
+        (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
+        as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
+        entry = self._table.get(prm.name)
+        if entry is None or not isinstance(entry[0], float):
+            return prm
+        if prm.type_ == Parameter.Type.INTEGER:
+            return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+        if prm.type_ == Parameter.Type.STRING:
+            try:
+                return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+            except ValueError:
+                return prm
+        return prm
+
     def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
-        """An integer for a float parameter is taken as that float (``ros2 param set ... 1``); types stay static."""
-        out = []
-        for prm in params:
-            entry = self._table.get(prm.name)
-            if entry is not None and isinstance(entry[0], float) and prm.type_ == Parameter.Type.INTEGER:
-                prm = Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-            out.append(prm)
-        return out
+        return [self._as_declared(prm) for prm in params]
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
@@ -248,9 +231,7 @@ class RigNode(Node):
         """A read-only parameter (ours or rclpy's own) given the value and type it has."""
         if not self.has_parameter(prm.name) or not self.describe_parameter(prm.name).read_only:
             return False
-        current = self.get_parameter(prm.name)
-        if current.type_ == Parameter.Type.DOUBLE and prm.type_ == Parameter.Type.INTEGER:
-            return float(prm.value) == current.value
+        prm, current = self._as_declared(prm), self.get_parameter(prm.name)
         return prm.type_ == current.type_ and prm.value == current.value
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -267,22 +248,29 @@ class RigNode(Node):
     def _after_set_parameters(self, params: list[Parameter]) -> None:
         """Apply accepted live changes (rates are applied between callbacks, see :meth:`apply_pending`)."""
         limits: dict[str, float] = {}
+        control: dict[str, float] = {}
         for prm in params:
             if prm.name not in NODE_PARAMS:
                 continue
             value = prm.value
             if prm.name in LIMIT_FIELDS:
                 limits[LIMIT_FIELDS[prm.name]] = value
+            elif prm.name in CONTROL_FIELDS:
+                control[CONTROL_FIELDS[prm.name]] = value
             elif prm.name == "tunnel.time_constant_s":
                 self.rig.actuator.set_time_constant(value)
             elif prm.name == "tunnel.max_rate_mps2":
                 self.rig.actuator.set_max_rate(value)
             elif prm.name == "max_lag_s":
                 self._max_lag_s = value
+            elif prm.name == "control.fast_delay_s":
+                self._fast_delay_s = value
             elif prm.name == "fast_max_realtime_factor":
                 self.fast_max_rtf = value
             else:
                 self._pending[prm.name] = value
+        if control:
+            self.rig.set_control(**control)
         if limits:
             self.rig.set_limits(**limits)  # acts on the present: ramps the tunnel down or aborts, logged
         self.get_logger().info("parameters set: " + ", ".join(f"{p.name}={p.value}" for p in params))
@@ -348,6 +336,85 @@ class RigNode(Node):
     def _topic_name(self, name: str) -> str:
         return name if name.startswith("/") else f"{self._topic_prefix}/{name}"
 
+    # ---- closed-loop control (issue 13): control/force_cmd; the logic is in panel_rig.rig.control ------------
+    def _init_control(self) -> None:
+        """``control/force_cmd`` (geometry_msgs/WrenchStamped: ``wrench.force.z`` N/m, ``header.stamp`` = the stamp
+        of the tip reading it answers)."""
+        self._control_topic = self._topic_name("control/force_cmd")
+        self._fast_delay_s = float(self.get_parameter("control.fast_delay_s").value)
+        self._lockstep = False  # fast mode: engaged by each accepted command, released when the controller is silent
+        self._answered_ns = -1
+        self._control_sub = self.create_subscription(WrenchStamped, "control/force_cmd", self._on_control,
+                                                     COMMAND_QOS)
+
+    def _on_control(self, msg: WrenchStamped) -> None:
+        """Age = now - stamp in the rig's time base (real time: the ROS clock; fast: simulated time); the command
+        acts from the simulated instant of its arrival."""
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_s = (stamp_ns - self._stamp_offset_ns) * 1e-9
+        if self.fast:  # lock-step: the rig waited for this answer; the transport latency is emulated
+            arrival_s = self.rig.time_s + self._fast_delay_s
+        else:
+            arrival_s = (self.get_clock().now().nanoseconds - self._stamp_offset_ns) * 1e-9
+        force = msg.wrench.force.z
+        result = self.rig.command_control(force, stamp_s, arrival_s)
+        if result.accepted and self.fast:
+            self._lockstep = True
+            self._answered_ns = max(self._answered_ns, stamp_ns)
+        for rec in self._recorders:
+            try:
+                rec.write(self._control_topic, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        if result.accepted and self._rerun is not None:
+            try:
+                self._rerun.log_control(stamp_s, force, (arrival_s - stamp_s) * 1e3)
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"rerun control failed: {exc}", throttle_duration_sec=5.0)
+        if not result.accepted:
+            self.get_logger().warning(f"control/force_cmd {force!r} rejected: {result.reason}",
+                                      throttle_duration_sec=0.2)
+
+    def lockstep_wait(self, executor: SingleThreadedExecutor) -> None:
+        """Fast mode with a controller attached: serve callbacks until the reading just published is answered (a
+        hardware-in-the-loop lock-step, deterministic whatever the machine's load). A controller silent for
+        LOCKSTEP_TIMEOUT_S of wall time releases the lock-step (the watchdog then acts in simulated time)."""
+        if not (self.fast and self._lockstep):
+            return
+        published = messages.stamp_ns(self.rig.time_s)
+        deadline = time.monotonic() + LOCKSTEP_TIMEOUT_S
+        while self._answered_ns < published and self._lockstep:
+            if time.monotonic() > deadline:
+                self._lockstep = False
+                self.get_logger().warning(f"controller silent for {LOCKSTEP_TIMEOUT_S:g} s (wall): lock-step released "
+                                          f"at t = {self.rig.time_s:.3f} s")
+                return
+            executor.spin_once(timeout_sec=0.002)
+
+    def _control_diagnostics(self) -> dict[str, Any]:
+        """Control actuator state and command ages (mean, p99, max over this diagnostics period; mean, p99 over the
+        last 100 000 commands)."""
+        c = self.rig.control
+        window = c.latency_stats_ms(c.take_window())
+        total = c.latency_stats_ms()
+
+        def ms(x: float) -> str:
+            return f"{x:.3f}" if math.isfinite(x) else "nan"
+
+        return {
+            "control_state": c.state,
+            "control_lockstep": self._lockstep,
+            "control_force_npm": f"{c.force_npm:.6f}",
+            "control_commands": c.commands,
+            "control_timeouts": c.timeouts,
+            "control_latency_mean_ms": ms(window["mean"]),
+            "control_latency_p99_ms": ms(window["p99"]),
+            "control_latency_max_ms": ms(window["max"]),
+            "control_latency_n": window["n"],
+            "control_latency_mean_total_ms": ms(total["mean"]),
+            "control_latency_p99_total_ms": ms(total["p99"]),
+        }
+
     # ---- commands and services -----------------------------------------------------------------------
     def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
         full = self._topic_name(topic)
@@ -389,7 +456,8 @@ class RigNode(Node):
         self._last_tick = now
         target = self._sim_anchor + (now - self._wall_anchor)
         deadline = now + self._publish_period_s
-        while self.rig.advance_to(target, max_steps=2) and time.monotonic() < deadline:
+        chunk = max(2, math.ceil(self._publish_period_s / self.dt_s))  # one compiled call per tick when on time
+        while self.rig.advance_to(target, max_steps=chunk) and time.monotonic() < deadline:
             pass
         lag = target - self.rig.time_s
         if lag > self._max_lag_s:
@@ -404,7 +472,7 @@ class RigNode(Node):
         """Fast mode: march publish periods up to the next shape sample in one block, then publish them all."""
         start = max(self._fast_next_s, self.rig.time_s)
         periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1),
-                      FAST_MAX_BLOCK_PERIODS)
+                      1 if self._lockstep else FAST_MAX_BLOCK_PERIODS)  # a controller in lock-step: one period
         counts, t = [], self.rig.time_s
         for k in range(1, periods + 1):
             target = start + k * self._publish_period_s
@@ -426,7 +494,8 @@ class RigNode(Node):
             return
         self.rig.emit_block(block)
         msgs, recording = self._msgs, bool(self._recorders)
-        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed))
+        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
+                (self.pub_truth, msgs.truth))
         for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
             for (pub, msg), data in zip(pubs, encoded):
                 if recording:
@@ -491,6 +560,7 @@ class RigNode(Node):
             "tick_jitter_p99_ms": f"{jitter:.3f}",
             "physics_dt_s": f"{self.dt_s:.9g}",
             "sink_errors": rig.sink_errors,
+            **self._control_diagnostics(),
         }
         rejected_now = rig.rejected_count - self._diag_rejected
         self._diag_rejected = rig.rejected_count
@@ -525,6 +595,7 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
             executor.spin_once(timeout_sec=0.05)
             continue
         node.fast_iteration()
+        node.lockstep_wait(executor)
         now = time.monotonic()
         ahead_s = 0.0
         if node.fast_max_rtf > 0:  # optional cap: wait (serving callbacks) while ahead of the paced clock

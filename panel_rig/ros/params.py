@@ -2,7 +2,7 @@
 
 Names form one nested namespace in which no name is also the prefix of another (so ``ros2 param dump``
 writes one nested YAML that ``ros2 param load`` takes back). Defaults of the rig's settings come from the
-rig's own dataclasses (:class:`SafetyLimits`, :class:`TunnelSettings`); ``config/rig.yaml`` is pinned to
+rig's own dataclasses (:class:`SafetyLimits`, :class:`TunnelSettings`, :class:`ControlSettings`); ``config/rig.yaml`` is pinned to
 these defaults by a test.
 """
 
@@ -14,8 +14,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from panel_rig.config import interval_rule
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+
+from panel_rig.config import SCHEMA, PanelConfig, interval_rule
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
+from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 
@@ -64,7 +67,7 @@ def _rerun(v: Any) -> str | None:
     return None if isinstance(v, str) and _RERUN.match(v) else f"expected none | save:PATH | connect:URL, got {v!r}"
 
 
-_LIMITS, _TUNNEL = SafetyLimits(), TunnelSettings()
+_LIMITS, _TUNNEL, _CONTROL = SafetyLimits(), TunnelSettings(), ControlSettings()
 
 NODE_PARAMS: dict[str, NodeParam] = {
     "physics_dt": _number(0.0, False, "physics step, s (0: use sim.dt_s)", 0.0, 0.01),
@@ -83,13 +86,30 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                        "airspeed limit, m/s (lowering it below the set-point ramps the tunnel down)",
                                        0.0, 1000.0, lo_open=True),
     "safety.max_tip_w_over_L": _number(_LIMITS.max_tip_w_over_L, True,
-                                       "tip |w/L| that aborts the run (also when lowered below the present tip)",
+                                       "tip |w/L| that aborts the run (1: the panel's own length; the wall may "
+                                       "come first; also when lowered below the present tip)",
                                        0.0, 100.0, lo_open=True),
+    "safety.wall_clearance_m": _number(_LIMITS.wall_clearance_m, True,
+                                       "distance from the panel's plane to the nearer tunnel wall, m: the tip "
+                                       "reaching it aborts the run", 0.0, 100.0, lo_open=True),
     "shaker.max_force_npm": _number(_LIMITS.max_force_npm, True, "held force limit +-, N/m", 0.0, 1e6, lo_open=True),
     "shaker.max_amplitude_npm": _number(_LIMITS.max_amplitude_npm, True, "sine amplitude limit, N/m", 0.0, 1e6,
                                         lo_open=True),
     "shaker.max_frequency_hz": _number(_LIMITS.max_frequency_hz, True, "sine frequency limit, Hz", 0.0, 1e5,
                                        lo_open=True),
+    # closed-loop control actuator (control/force_cmd; panel_rig/rig/control.py)
+    "control.bandwidth_hz": _number(_CONTROL.bandwidth_hz, True, "control actuator first-order bandwidth, Hz",
+                                    0.0, 1e4, lo_open=True),
+    "control.max_force_npm": _number(_CONTROL.max_force_npm, True,
+                                     "control force saturation +-, N/m (commands beyond it are rejected)",
+                                     0.0, 1e6, lo_open=True),
+    "control.max_rate_npmps": _number(_CONTROL.max_rate_npmps, True, "control force rate limit, N/m per s",
+                                      0.0, 1e9, lo_open=True),
+    "control.timeout_s": _number(_CONTROL.timeout_s, True,
+                                 "watchdog: no control command for longer -> control force to zero, s",
+                                 0.0, 60.0, lo_open=True),
+    "control.fast_delay_s": _number(0.002, True, "fast mode (lock-step with the controller): emulated command "
+                                    "latency added to each command's arrival, s", 0.0, 1.0),
     "record": NodeParam(False, False, _bool, "record a rosbag2 MCAP of every topic and command"),
     "bag_dir": NodeParam("bags", False, _string, "directory for recordings"),
     "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
@@ -99,10 +119,15 @@ NODE_PARAMS: dict[str, NodeParam] = {
 LIMIT_FIELDS = {
     "safety.max_airspeed_mps": "max_airspeed_mps",
     "safety.max_tip_w_over_L": "max_tip_w_over_L",
+    "safety.wall_clearance_m": "wall_clearance_m",
     "shaker.max_force_npm": "max_force_npm",
     "shaker.max_amplitude_npm": "max_amplitude_npm",
     "shaker.max_frequency_hz": "max_frequency_hz",
 }
+
+
+#: node parameter -> field of :class:`panel_rig.rig.control.ControlSettings`
+CONTROL_FIELDS = {f"control.{name}": name for name in ("bandwidth_hz", "max_force_npm", "max_rate_npmps", "timeout_s")}
 
 
 def check_node_params(values: Mapping[str, Any]) -> list[str]:
@@ -116,3 +141,31 @@ def check_node_params(values: Mapping[str, Any]) -> list[str]:
         if reason:
             problems.append(f"{name}: {reason}")
     return problems
+
+
+def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
+                ) -> ParameterDescriptor:
+    """A statically typed descriptor (type of the default) with its range and read-only flag."""
+    kind = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+            float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}[type(default)]
+    d = ParameterDescriptor(type=kind, description=description + ("; read-only: restart to change" if read_only else ""),
+                            read_only=read_only)
+    if kind == ParameterType.PARAMETER_DOUBLE and (lo is not None or hi is not None):
+        d.floating_point_range = [FloatingPointRange(from_value=float(-math.inf if lo is None else lo),
+                                                     to_value=float(math.inf if hi is None else hi), step=0.0)]
+    elif kind == ParameterType.PARAMETER_INTEGER and (lo is not None or hi is not None):
+        d.integer_range = [IntegerRange(from_value=int(-(2**63) if lo is None else lo),
+                                        to_value=int(2**63 - 1 if hi is None else hi), step=1)]
+    return d
+
+
+def parameter_table() -> dict[str, tuple[Any, ParameterDescriptor]]:
+    """Every node parameter, physics and node's own: name -> (default, descriptor)."""
+    defaults = PanelConfig()
+    table: dict[str, tuple[Any, ParameterDescriptor]] = {}
+    for key, spec in SCHEMA.items():
+        default = getattr(defaults, spec.field)
+        table[key] = (default, _descriptor(default, f"physics ({spec.rule})", True, spec.lo, spec.hi))
+    for name, p in NODE_PARAMS.items():
+        table[name] = (p.default, _descriptor(p.default, p.description, not p.live, p.lo, p.hi))
+    return table

@@ -21,7 +21,13 @@ TIP = "tip/w_over_L"
 AIRSPEED = "airspeed/mps"
 FORCE = "shaker/force_npm"
 SHAPE = "panel/shape"
+CONTROL_CMD = "control/command_npm"
+CONTROL_AGE = "control/latency_ms"
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+# How a time-series view draws the samples that share a pixel when zoomed out. Rerun's default is the
+# average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
+# its envelope at any zoom.
+AGGREGATION = "MinMax"
 
 
 class VizError(RuntimeError):
@@ -43,6 +49,8 @@ def blueprint(n_modes: int) -> Any:
         rrb.TimeSeriesView(
             origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)"
         ),
+        rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
+        rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)"),
     )
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
     eye = rrb.EyeControls3D(
@@ -76,6 +84,7 @@ class RerunLogger:
         self.batch_period_s = float(batch_period_s)
         self._pending: list[ReadingBlock] = []
         self._pending_shapes: list[tuple[float, np.ndarray]] = []
+        self._pending_control: list[tuple[float, float, float]] = []
         self._pending_since = time.monotonic()
         self._rec: Any = None
         if mode == "off":
@@ -155,6 +164,13 @@ class RerunLogger:
             return
         self._pending_shapes.append((float(time_s), _strip_points(x_m, z_m, "queue_shape")))
 
+    def log_control(self, time_s: float, command_npm: float, age_ms: float) -> None:
+        """A control command (at the simulated time of the reading it answers) and its age on arrival; buffered
+        and sent as columns with the next :meth:`flush_blocks`."""
+        if self._rec is None:
+            return
+        self._pending_control.append((float(time_s), float(command_npm), float(age_ms)))
+
     # Sink protocol (panel_rig.rig.reading.Sink)
     def on_reading(self, reading: Reading) -> None:
         self.log_reading(reading)
@@ -171,9 +187,17 @@ class RerunLogger:
         """Send the buffered blocks now (one `send_columns` per entity)."""
         pending, self._pending = self._pending, []
         shapes, self._pending_shapes = self._pending_shapes, []
+        control, self._pending_control = self._pending_control, []
         self._pending_since = time.monotonic()
         if self._rec is None:
             return
+        if control:
+            rr = self._rr
+            arr = np.array(control, dtype=float)
+            order = np.argsort(arr[:, 0], kind="stable")
+            index = [rr.TimeColumn(TIMELINE, duration=arr[order, 0])]
+            for entity, col in ((CONTROL_CMD, 1), (CONTROL_AGE, 2)):
+                self._rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=arr[order, col]))
         if shapes:
             rr = self._rr
             self._rec.send_columns(
@@ -190,7 +214,7 @@ class RerunLogger:
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         """Accepted commands become scalars under `commands/<name>`."""
-        if self._rec is None or not accepted:
+        if self._rec is None or not accepted or name == "control/force_cmd":  # 500 Hz: batched by log_control
             return
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
@@ -216,18 +240,25 @@ class RerunLogger:
         return str(path)
 
     def _log_styles(self) -> None:
+        """Static `SeriesLines` per series: name, colour, width and min/max zoom aggregation (`AGGREGATION`)."""
         rr, rec = self._rr, self._rec
         styles = {
             TIP: ("w/L", [31, 119, 180]),
             AIRSPEED: ("airspeed m/s", [44, 160, 44]),
             FORCE: ("shaker N/m", [214, 39, 40]),
+            CONTROL_CMD: ("control command N/m", [148, 103, 189]),
+            CONTROL_AGE: ("command age ms", [127, 127, 127]),
         }
         palette = [[255, 127, 14], [148, 103, 189], [140, 86, 75], [227, 119, 194], [23, 190, 207]]
         for i in range(1, self.n_modes + 1):
             styles[modal_entity(i)] = (f"q{i}", palette[(i - 1) % len(palette)])
         rec.log("panel", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for entity, (name, color) in styles.items():
-            rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
+            rec.log(
+                entity,
+                rr.SeriesLines(names=name, colors=[color], widths=1.5, aggregation_policy=AGGREGATION),
+                static=True,
+            )
 
 
 def _strip_points(x_m: np.ndarray, z_m: np.ndarray, caller: str) -> np.ndarray:

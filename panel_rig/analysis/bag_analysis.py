@@ -1,0 +1,274 @@
+"""Airspeed plateaus, LCO status and the flutter onset of a recorded run: pure functions on arrays.
+
+Used by `panel-rig analyze BAG` (panel_rig.cli), which loads the bag with
+:func:`panel_rig.recording.series.load_series`. Nothing here reads files or knows about bags.
+
+Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
+
+* **Plateau**: a stretch where the *measured* airspeed stays within ``tol_mps`` of the stretch's
+  final value (median of its last half) for at least ``min_duration_s``. Samples are first marked
+  steady when some ``window_s`` window containing them spans at most ``tol_mps``; each steady run is
+  then trimmed to its longest part within ``tol_mps`` of that final value, which cuts the tunnel's
+  first-order-lag approach (and any slow drift) off the front, and ended at the first recorded
+  ``airspeed_cmd`` that leaves it (the lag keeps the measured airspeed close for a moment after it).
+* **Free response**: the part of a plateau after the last shaker command inside it (a tap: force on,
+  force off), or the whole plateau if that leaves less than ``min_free_s``.
+* **Metrics window**: the second half of the free response, at most its last ``measure_s`` (5 s, as
+  ``panel-rig lco``). RMS and peak tip w/L and the dominant frequency are taken there.
+* **Growth rate** (1/s): least-squares slope of log(envelope), the envelope being the RMS of
+  consecutive windows of ``max(envelope_window_s, 4 periods)``; windows below ``1e-3`` of the
+  largest are left out (numerical floor). ``growth_rate_per_s`` over the free response,
+  ``late_growth_rate_per_s`` over the metrics window.
+* **Status**: ``lco`` if RMS >= ``lco_min_rms`` and ``|late rate| <= max_steady_rate_per_s``, or, for
+  the irregular (bursting) LCO of the full nonlinear model, if RMS >= ``irregular_lco_min_rms`` and the
+  oscillation is sustained (RMS of the last third of the metrics window within 0.5-2 of the first
+  third) or its envelope is not exponential (R^2 of the log-envelope line < 0.7);
+  else ``growing`` if a rate > ``max_steady_rate_per_s``; else ``decaying`` if the free-response
+  rate < ``-max_steady_rate_per_s`` and the envelope rose above ``quiet_rms``; else ``quiet``.
+* **Onset**: bracketed by the first unstable plateau in time (``lco`` or ``growing``; also the first
+  ``lco`` one is named) and the fastest stable (``decaying`` or ``quiet``) plateau below it *and before
+  it in time*: once an LCO has started, a subcritical system may stay in LCO below the flutter speed
+  (hysteresis), so later plateaus say nothing about the onset. Extrapolated where at least
+  two decaying plateaus (U > 0.5 m/s, below the bracket) exist: a straight line through the decay
+  rates of the (up to ``extrapolation_points``) fastest ones, to zero rate. Where the upper end of
+  the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated), the rate
+  is also interpolated linearly between the two bracketing plateaus (``interpolated_mps``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_rms
+
+SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
+Commands = dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """Thresholds of the plateau split, the LCO decision and the onset estimate (SI units)."""
+
+    tol_mps: float = 0.05
+    window_s: float = 1.0
+    min_duration_s: float = 3.0
+    min_free_s: float = 2.0
+    measure_s: float = 5.0
+    envelope_window_s: float = 0.5
+    lco_min_rms: float = 0.005
+    max_steady_rate_per_s: float = 0.03
+    irregular_lco_min_rms: float = 0.05
+    quiet_rms: float = 1e-7
+    min_extrapolation_airspeed_mps: float = 0.5
+    extrapolation_points: int = 3
+
+
+def mean_dt(t_s: np.ndarray) -> float:
+    """Mean sample interval. Not the median: in fast mode readings fall on whole physics steps
+    (e.g. 4 or 5 steps of 1/2048 s for 500 Hz), and the median would bias frequencies by 2.4 %."""
+    return float((t_s[-1] - t_s[0]) / (t_s.size - 1)) if t_s.size > 1 else 0.0
+
+
+# ---------------------------------------------------------------------------------- plateaus
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index ranges of consecutive True."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def find_plateaus(t_s: np.ndarray, airspeed_mps: np.ndarray, crit: Criteria = Criteria()) -> list[tuple[int, int]]:
+    """[start, end) sample ranges of airspeed plateaus (see the module docstring)."""
+    n = t_s.size
+    dt = mean_dt(t_s) or 1.0
+    n_w = max(2, int(round(crit.window_s / dt)))
+    u = np.nan_to_num(np.asarray(airspeed_mps, dtype=float), nan=np.inf)
+    if n < n_w:
+        return []
+    win = np.lib.stride_tricks.sliding_window_view(u, n_w)
+    ok_start = (win.max(axis=1) - win.min(axis=1)) <= crit.tol_mps
+    steady = np.convolve(ok_start.astype(float), np.ones(n_w))[:n] > 0
+    out = []
+    for i0, i1 in _runs(steady):
+        seg = u[i0:i1]
+        ref = float(np.median(seg[seg.size // 2 :]))
+        inside = _runs(np.abs(seg - ref) <= crit.tol_mps)
+        if not inside:
+            continue
+        a, b = max(inside, key=lambda r: r[1] - r[0])
+        if t_s[i0 + b - 1] - t_s[i0 + a] >= crit.min_duration_s:
+            out.append((i0 + a, i0 + b))
+    return out
+
+
+def cut_at_setpoint_changes(t_s: np.ndarray, airspeed_mps: np.ndarray, airspeed_cmds: list[tuple[float, float]],
+                            ranges: list[tuple[int, int]], crit: Criteria = Criteria()) -> list[tuple[int, int]]:
+    """End each plateau at the first recorded `airspeed_cmd` (t_s, value) inside it that leaves it (by > tol_mps).
+
+    The tunnel lags the set-point, so the measured airspeed stays within tolerance for a moment
+    after a new command, while the response may already change.
+    """
+    out = []
+    for i0, i1 in ranges:
+        ref = float(np.median(airspeed_mps[i0:i1]))
+        t0, t1 = t_s[i0], t_s[i1 - 1]
+        t_cut = min((t for t, v in airspeed_cmds if t0 < t <= t1 and abs(v - ref) > crit.tol_mps), default=None)
+        if t_cut is not None:
+            i1 = int(np.searchsorted(t_s, t_cut, side="left"))
+        if i1 > i0 and t_s[i1 - 1] - t_s[i0] >= crit.min_duration_s:
+            out.append((i0, i1))
+    return out
+
+
+# ---------------------------------------------------------------------------------- metrics
+def envelope_rate_per_s(x: np.ndarray, dt_s: float, window_s: float, floor_ratio: float = 1e-3) -> float:
+    """Slope of log(windowed RMS) vs time, 1/s; windows below floor_ratio of the largest dropped."""
+    n_w = max(2, int(round(window_s / dt_s)))
+    env = window_rms(np.asarray(x, dtype=float), n_w)
+    if env.size < 3 or not np.any(env > 0):
+        return 0.0
+    t = (np.arange(env.size) + 0.5) * n_w * dt_s
+    keep = env > floor_ratio * env.max()
+    if keep.sum() < 3:
+        return 0.0
+    return float(np.polyfit(t[keep], np.log(env[keep]), 1)[0])
+
+
+def _free_start(commands: Commands, t0: float, t1: float, crit: Criteria) -> float:
+    times = [t for name in SHAKER_TOPICS for t, _ in commands.get(name, []) if t0 <= t <= t1]
+    start = max(times, default=t0)
+    return start if t1 - start >= crit.min_free_s else t0
+
+
+def _log_fit_r2(env: np.ndarray) -> float:
+    """R^2 of a straight line through log(envelope): near 1 for exponential growth or decay."""
+    keep = env > 0
+    if keep.sum() < 3:
+        return 1.0
+    t, y = np.flatnonzero(keep).astype(float), np.log(env[keep])
+    resid = y - np.polyval(np.polyfit(t, y, 1), t)
+    ss = float(np.sum((y - y.mean()) ** 2))
+    return 1.0 - float(np.sum(resid**2)) / ss if ss > 0 else 1.0
+
+
+def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sustain: float, r2: float,
+            crit: Criteria) -> str:
+    """lco: a sustained oscillation, either steady (|late rate| small) or irregular but large: RMS above
+    irregular_lco_min_rms and either the RMS of the last third of the window within [0.5, 2] of the first
+    third, or an envelope that is not exponential (R^2 of the log-envelope fit < 0.7; a free decay or growth
+    fits with R^2 > 0.9)."""
+    lim = crit.max_steady_rate_per_s
+    if rms_late >= crit.lco_min_rms and abs(rate_late) <= lim:
+        return "lco"
+    if rms_late >= crit.irregular_lco_min_rms and (0.5 <= sustain <= 2.0 or r2 < 0.7):
+        return "lco"
+    if (rate > lim or rate_late > lim) and peak_env > crit.quiet_rms:
+        return "growing"
+    if rate < -lim and peak_env > crit.quiet_rms:
+        return "decaying"
+    return "quiet"
+
+
+def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
+                    i0: int, i1: int, crit: Criteria = Criteria()) -> dict[str, Any]:
+    """Metrics of one plateau [i0, i1) (see the module docstring)."""
+    t, w, dt = t_s, tip_w_over_L, mean_dt(t_s)
+    t0, t1 = float(t[i0]), float(t[i1 - 1])
+    f0 = _free_start(commands, t0, t1, crit)
+    j0 = int(np.searchsorted(t, f0, side="right"))
+    free = w[j0:i1]
+    half = free[free.size // 2 :]
+    late = half[-max(16, int(round(crit.measure_s / dt))) :]
+    freq = dominant_frequency_hz(late, mean_dt(t[i1 - late.size : i1]))
+    win_s = max(crit.envelope_window_s, 4.0 / freq) if freq > 0 else crit.envelope_window_s
+    env = window_rms(free, max(2, int(round(win_s / dt))))
+    rate = envelope_rate_per_s(free, dt, win_s)
+    rate_late = envelope_rate_per_s(late, dt, min(win_s, late.size * dt / 3))
+    rms_late = rms(late)
+    third = max(1, late.size // 3)
+    sustain = rms(late[-third:]) / max(rms(late[:third]), 1e-300)
+    u = airspeed_mps[i0:i1]
+    return {
+        "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
+        "measure_from_s": round(float(t[i1 - late.size]), 4),
+        "airspeed_mps": float(np.mean(u)), "airspeed_std_mps": float(np.std(u)),
+        "rms_tip_w_over_L": rms_late, "peak_tip_w_over_L": float(np.max(np.abs(late))),
+        "dominant_frequency_hz": freq, "growth_rate_per_s": rate, "late_growth_rate_per_s": rate_late,
+        "status": _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain,
+                          _log_fit_r2(env), crit),
+    }
+
+
+# ---------------------------------------------------------------------------------- onset
+def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) -> dict[str, Any]:
+    """Bracket (last decaying, first unstable) and the linear extrapolation of decay rate to zero."""
+    unstable = [p for p in plateaus if p["status"] in ("lco", "growing")]
+    first_lco = next((p for p in plateaus if p["status"] == "lco"), None)
+    upper = unstable[0] if unstable else None
+    u_hi = upper["airspeed_mps"] if upper else math.inf
+    # stable plateaus (decaying, or at rest) below the first unstable one, taken before it in time: after an
+    # LCO has started, a subcritical system can stay in LCO below the flutter speed (hysteresis)
+    stable = [p for p in plateaus if p["status"] in ("decaying", "quiet") and p["airspeed_mps"] < u_hi]
+    before = [p for p in stable if upper is None or p["t_end_s"] <= upper["t_start_s"]]
+    lower = max(before, key=lambda p: p["airspeed_mps"], default=None)
+    below = [p for p in before if p["status"] == "decaying"]
+    out: dict[str, Any] = {
+        "bracket_low_mps": lower["airspeed_mps"] if lower else None,
+        "bracket_high_mps": u_hi if upper else None,
+        "first_lco_mps": first_lco["airspeed_mps"] if first_lco else None,
+        "extrapolated_mps": None, "extrapolation_points": [], "interpolated_mps": None,
+    }
+    if lower and upper and upper["status"] == "growing" and upper["growth_rate_per_s"] > 0 > lower["growth_rate_per_s"]:
+        (u0, r0), (u1, r1) = ((p["airspeed_mps"], p["growth_rate_per_s"]) for p in (lower, upper))
+        out["interpolated_mps"] = float(u0 - r0 * (u1 - u0) / (r1 - r0))
+    pts = sorted(
+        ((p["airspeed_mps"], p["growth_rate_per_s"]) for p in below
+         if p["airspeed_mps"] > crit.min_extrapolation_airspeed_mps),
+        key=lambda x: x[0],
+    )[-crit.extrapolation_points :]
+    if len({round(u, 3) for u, _ in pts}) >= 2:
+        slope, icpt = np.polyfit([u for u, _ in pts], [r for _, r in pts], 1)
+        out["extrapolation_points"] = [[u, r] for u, r in pts]
+        if slope > 0:
+            out["extrapolated_mps"] = float(-icpt / slope)
+    return out
+
+
+# ---------------------------------------------------------------------------------- a whole run
+def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
+                   crit: Criteria = Criteria()) -> dict[str, Any]:
+    """Plateaus (numbered from 1), their metrics and the onset estimate of one run's series."""
+    ranges = cut_at_setpoint_changes(t_s, airspeed_mps, commands.get("airspeed_cmd", []),
+                                     find_plateaus(t_s, airspeed_mps, crit), crit)
+    plateaus = [analyze_plateau(t_s, tip_w_over_L, airspeed_mps, commands, i0, i1, crit) for i0, i1 in ranges]
+    for k, p in enumerate(plateaus, start=1):
+        p["index"] = k
+        p["lco"] = p["status"] == "lco"
+    dt = mean_dt(t_s)
+    return {
+        "duration_s": float(t_s[-1] - t_s[0]),
+        "samples": int(t_s.size),
+        "sample_rate_hz": 1.0 / dt if dt > 0 else None,
+        "criteria": asdict(crit),
+        "plateaus": plateaus,
+        "onset": estimate_onset(plateaus, crit),
+    }
+
+
+def write_plots(plots_dir: Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
+                result: dict[str, Any]) -> list[str]:
+    """Time history, spectrogram and amplitude/frequency vs airspeed (Fig. 8) as PNG."""
+    from panel_rig.analysis import plots
+
+    plots_dir = Path(plots_dir)
+    spans = [(p["t_start_s"], p["t_end_s"], p["status"]) for p in result["plateaus"]]
+    paths = [
+        plots.plot_time_history(plots_dir / "time_history.png", t_s, tip_w_over_L, airspeed_mps, spans),
+        plots.plot_spectrogram(plots_dir / "spectrogram.png", t_s, tip_w_over_L, airspeed_mps),
+        plots.plot_lco_vs_airspeed(plots_dir / "lco_vs_airspeed.png", result["plateaus"], result["onset"]),
+    ]
+    return [str(p) for p in paths]

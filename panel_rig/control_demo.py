@@ -1,0 +1,266 @@
+"""``panel-rig control-demo``: active flutter suppression over topics, end to end, with a printed verdict.
+
+Starts the rig node (fast mode: the controller runs in lock-step with it, the transport latency emulated as
+``control.fast_delay_s``, so the result does not depend on the machine's load; recording a bag and a Rerun
+``.rrd``) and the reference controller (``panel-rig control``) as separate processes, then, from a client node:
+
+1. at 1.2 x the open-loop flutter speed U_f, taps the panel with the shaker and shows it quiet: tip RMS over the
+   last 2 s of a 6 s window below QUIET_FACTOR x the assumed sensor noise;
+2. steps the airspeed up over 0.95 ... 1.05 x the predicted closed-loop flutter speed (linear ROM model with the
+   controller, actuator and loop delay), taps at each step and fits the growth rate of the tip envelope: the
+   emulated onset is where it crosses zero (stepping stops once it is bracketed); compares it with the prediction.
+
+``panel-rig control-demo [--delay-ms 2] [--out out/control_demo] [--bag-dir bags] [--json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+QUIET_AT = 1.2  # x open-loop U_f
+ONSET_FACTORS = (0.95, 0.975, 1.0, 1.025, 1.05)  # x predicted closed-loop U_f
+SETTLE_S, WINDOW_S = 1.0, 3.0  # per onset step: tunnel settling, then the growth-rate window after a tap
+RATE_HZ = 500.0
+
+
+class DemoError(RuntimeError):
+    pass
+
+
+def _stamp(msg: Any) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class _Client:
+    """Readings in, commands out (airspeed, shaker), diagnostics."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PointStamped, Vector3Stamped
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+        from std_msgs.msg import Float64
+
+        self._rclpy, self._Float64 = rclpy, Float64
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node("control_demo", namespace="/rig", context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.tip: list[tuple[float, float]] = []
+        self.airspeed = math.nan
+        self.diag: dict[str, str] = {}
+        self.node.create_subscription(PointStamped, "tip_displacement",
+                                      lambda m: self.tip.append((_stamp(m), m.point.z)), qos_profile_sensor_data)
+        self.node.create_subscription(Vector3Stamped, "airspeed", self._on_air, qos_profile_sensor_data)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, rel)
+        self.pubs = {t: self.node.create_publisher(Float64, t, rel) for t in ("airspeed_cmd", "shaker/force_cmd")}
+
+    def _on_air(self, m: Any) -> None:
+        self.airspeed = m.vector.x
+
+    def _on_diag(self, m: Any) -> None:
+        for st in m.status:
+            if st.name == "panel_rig: tunnel":
+                self.diag = {kv.key: kv.value for kv in st.values}
+
+    def wait(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not cond():
+            if time.monotonic() > deadline:
+                raise DemoError(f"timed out after {timeout_s:g} s waiting for {what}")
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def now(self) -> float:
+        return self.tip[-1][0] if self.tip else -math.inf
+
+    def wait_sim(self, dt_s: float, timeout_s: float = 120.0) -> None:
+        end = self.now() + dt_s
+        self.wait(lambda: self.now() >= end, timeout_s, f"{dt_s:g} s of rig time")
+
+    def send(self, topic: str, value: float) -> None:
+        self.wait(lambda: self.pubs[topic].get_subscription_count() > 0, 20.0, f"a subscriber on {topic}")
+        self.pubs[topic].publish(self._Float64(data=float(value)))
+
+    def tap(self, force_npm: float = 0.05, duration_s: float = 0.02) -> float:
+        self.send("shaker/force_cmd", force_npm)
+        self.wait_sim(duration_s)
+        self.send("shaker/force_cmd", 0.0)
+        return self.now()
+
+    def window(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        a = np.array([x for x in self.tip if t0 <= x[0] <= t1])
+        return (a[:, 0], a[:, 1]) if a.size else (np.zeros(0), np.zeros(0))
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self._rclpy.shutdown(context=self.ctx)
+
+
+def _stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -> dict[str, Any]:
+    """The whole demonstration; returns the summary (also written to ``out/summary.json``)."""
+    from panel_rig.analysis.control import (
+        QUIET_FACTOR,
+        SENSOR_NOISE_M,
+        LoopModel,
+        closed_loop_flutter,
+        design_law,
+        effective_delay,
+    )
+    from panel_rig.config import load_config
+    from panel_rig.model.aeroelastic import AeroelasticModel
+    from panel_rig.rig.control import ControlSettings, envelope_growth_rate
+
+    cfg = load_config()
+    model = AeroelasticModel(cfg)
+    design = design_law(model)
+    u_f = design.open_loop_flutter_mps
+    delay_s = effective_delay(delay_ms * 1e-3, RATE_HZ, cfg.dt_s)
+    pred = closed_loop_flutter(model, design.law, LoopModel(ControlSettings().bandwidth_hz, delay_s))
+    if pred.speed_mps is None:
+        raise DemoError(f"the linear model predicts no closed-loop flutter (or a low-speed instability): {pred}")
+    log(f"design: gain {design.law.gain_nspm2:g} N s/m^2; open-loop U_f {u_f:.3f} m/s; predicted closed-loop U_f "
+        f"{pred.speed_mps:.3f} m/s with loop delay {delay_s * 1e3:.2f} ms (command age {delay_ms:g} ms)")
+
+    run_name = time.strftime("control_demo_%Y%m%d_%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    bag_dir.mkdir(parents=True, exist_ok=True)
+    rrd = out / f"{run_name}.rrd"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_LOG_DIR=str(out / "ros_log"))
+    before = {p.name for p in bag_dir.glob("rig_*")}
+    node_log, ctl_log = out / f"{run_name}_node.log", out / f"{run_name}_controller.log"
+    with open(node_log, "w") as fh:
+        node = subprocess.Popen(
+            [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+             "--params-file", str(ROOT / "config" / "rig.yaml"), "-p", "tunnel.time_constant_s:=0.3",
+             "-p", f"control.fast_delay_s:={delay_ms * 1e-3}", "-p", "fast_max_realtime_factor:=5.0",
+             "-p", "diagnostics_rate_hz:=5.0", "-p", "record:=true", "-p", f"bag_dir:={bag_dir}",
+             "-p", f"rerun:=save:{rrd}"], env=env, stdout=fh, stderr=subprocess.STDOUT)
+    with open(ctl_log, "w") as fh:
+        ctl = subprocess.Popen(
+            [sys.executable, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
+             "-p", f"gain_nspm2:={design.law.gain_nspm2}", "-p", f"derivative_hz:={design.law.derivative_hz}"],
+            env=env, stdout=fh, stderr=subprocess.STDOUT)
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    client = _Client(int(env["ROS_DOMAIN_ID"]))
+    summary: dict[str, Any] = {}
+    try:
+        client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
+        # 1. quiet at 1.2 U_f
+        u_quiet = QUIET_AT * u_f
+        client.send("airspeed_cmd", u_quiet)
+        client.wait(lambda: client.airspeed > 0.999 * u_quiet, 60.0, "the tunnel at 1.2 U_f")
+        t_tap = client.tap()
+        client.wait_sim(6.0)
+        _, w = client.window(t_tap + 4.0, t_tap + 6.0)
+        rms = float(np.sqrt(np.mean(w**2))) if w.size else math.nan
+        threshold = QUIET_FACTOR * SENSOR_NOISE_M
+        log(f"1.2 U_f = {u_quiet:.2f} m/s: tip RMS {rms * 1e6:.2f} um over t_tap + 4..6 s (quiet below "
+            f"{threshold * 1e6:.0f} um = {QUIET_FACTOR:g} x sensor noise {SENSOR_NOISE_M * 1e6:g} um)")
+        # 2. onset
+        rates = []
+        for fac in ONSET_FACTORS:
+            u = fac * pred.speed_mps
+            client.send("airspeed_cmd", u)
+            client.wait(lambda u=u: abs(client.airspeed - u) < 1e-3 * u, 60.0, f"the tunnel at {u:.2f} m/s")
+            client.wait_sim(SETTLE_S)
+            t0 = client.tap()
+            client.wait_sim(WINDOW_S)
+            t, w = client.window(t0 + 0.5, t0 + WINDOW_S)
+            g = envelope_growth_rate(t, w) if t.size > 50 else math.nan
+            rates.append(g)
+            log(f"  U = {u:.3f} m/s ({fac:.3f} x predicted): tip envelope growth rate {g:+.3f} 1/s")
+            if client.diag.get("state") != "running" or (g > 0 and any(x < 0 for x in rates[:-1])):
+                break  # the onset is bracketed: no need to let the flutter grow further
+        client.send("airspeed_cmd", 0.0)
+        d = dict(client.diag)
+        speeds = np.array(ONSET_FACTORS[: len(rates)]) * pred.speed_mps
+        r = np.array(rates)
+        cross = [i for i in range(len(r) - 1) if r[i] < 0 <= r[i + 1]]
+        onset = (float(speeds[cross[0]] - r[cross[0]] * (speeds[cross[0] + 1] - speeds[cross[0]])
+                       / (r[cross[0] + 1] - r[cross[0]])) if cross else None)
+        summary = {
+            "open_loop_flutter_speed_mps": u_f, "closed_loop_flutter_speed_mps": pred.speed_mps,
+            "emulated_closed_loop_onset_mps": onset,
+            "onset_error": None if onset is None else onset / pred.speed_mps - 1.0,
+            "quiet_airspeed_mps": u_quiet, "quiet_tip_rms_m": rms, "quiet_threshold_m": threshold,
+            "quiet": bool(rms < threshold), "command_age_ms": delay_ms, "loop_delay_ms": delay_s * 1e3,
+            "onset_airspeeds_mps": speeds.tolist(), "onset_growth_rates_per_s": rates,
+            "law": design.law.as_dict(), "latency_mean_total_ms": d.get("control_latency_mean_total_ms"),
+            "latency_p99_total_ms": d.get("control_latency_p99_total_ms"), "rig_state": d.get("state"),
+            "control_commands": d.get("control_commands"), "rejected_commands": d.get("rejected_commands"),
+        }
+    finally:
+        client.close()
+        ctl_code = _stop(ctl)
+        node_code = _stop(node)
+    new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
+    summary.update(bag=str(new[-1]) if new else None, rerun=str(rrd) if rrd.exists() else None,
+                   node_exit=node_code, controller_exit=ctl_code, node_log=str(node_log))
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="panel-rig control-demo", description=__doc__.splitlines()[0])
+    ap.add_argument("--delay-ms", type=float, default=2.0,
+                    help="command age the rig emulates (lock-step), ms; e.g. the p99 of benchmarks/control_latency.py")
+    ap.add_argument("--out", default="out/control_demo")
+    ap.add_argument("--bag-dir", default="bags")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
+        print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
+        return 2
+    t0 = time.monotonic()
+    try:
+        s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),
+                log=(lambda m: print(m, file=sys.stderr)) if args.json else print)
+    except DemoError as exc:
+        print(f"panel-rig control-demo: {exc}", file=sys.stderr)
+        return 1
+    ok = s.get("quiet") and s.get("onset_error") is not None and abs(s["onset_error"]) <= 0.05 and s["bag"]
+    if args.json:
+        print(json.dumps(s))
+    else:
+        onset = s.get("emulated_closed_loop_onset_mps")
+        print(f"\nopen-loop U_f {s['open_loop_flutter_speed_mps']:.3f} m/s; closed loop: predicted "
+              f"{s['closed_loop_flutter_speed_mps']:.3f} m/s, emulated onset "
+              + ("not bracketed" if onset is None else f"{onset:.3f} m/s ({100 * s['onset_error']:+.1f} %)"))
+        print(f"quiet at 1.2 U_f: {'yes' if s.get('quiet') else 'NO'} (tip RMS {s['quiet_tip_rms_m'] * 1e6:.2f} um)")
+        print(f"bag: {s['bag']}\nrerun: {s['rerun']}\nsummary: {Path(args.out) / 'summary.json'}  "
+              f"({time.monotonic() - t0:.0f} s wall)")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

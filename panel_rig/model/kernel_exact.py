@@ -1,0 +1,154 @@
+"""Compiled (numba) evaluation of the exact (elastica) structure at one state; see elastica.py for the equations.
+
+Per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
+A_i = -int sin(theta) psi_i, B_i = int cos(theta) psi_i; then the mass matrix M(q) = m int (A A^T + B B^T),
+the convective inertia force h(q, v) = m int (A a_x + B a_w) (a_x = -int cos(theta) theta_dot^2,
+a_w = -int sin(theta) theta_dot^2), on request its velocity Jacobian dh/dv (for the Newton matrix of a step),
+and the tip-force vector B(1) = int cos(theta) psi.
+Work arrays are passed in so that the time loop allocates nothing. fastmath: these sums may be reassociated
+(the exact path only; the cubic kernel is unaffected).
+
+Development note: numba's on-disk cache of ``kernel.march`` does not notice edits to this module (it keys on
+kernel.py only): after changing a function here, delete ``panel_rig/model/__pycache__/*.nb[ic]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, fastmath=True)
+def cumulative(f, run, w_elem, n_elem, out):
+    """out[p] = int_0^{s_p} f: within the element by ``run`` (interpolating polynomial), plus the Gauss totals
+    of the elements before it."""
+    g = run.shape[0]
+    base = 0.0
+    for e in range(n_elem):
+        o = e * g
+        for i in range(g):
+            acc = base
+            for k in range(g):
+                acc += run[i, k] * f[o + k]
+            out[o + i] = acc
+        for k in range(g):
+            base += w_elem[k] * f[o + k]
+
+
+@njit(cache=True, fastmath=True)
+def exact_tip(q, psi, w):
+    """w(1)/L = int sin(theta)."""
+    n, npts = psi.shape
+    acc = 0.0
+    for p in range(npts):
+        th = 0.0
+        for i in range(n):
+            th += q[i] * psi[i, p]
+        acc += w[p] * np.sin(th)
+    return acc
+
+
+@njit(cache=True, fastmath=True)
+def cumulative_T(y, run, w_elem, n_elem, out):
+    """The transpose of :func:`cumulative`: out_k = sum_p R_pk y_p, R the running-integral matrix
+    (within element e: run; for points of later elements: the weights of k)."""
+    g = run.shape[0]
+    later = 0.0  # sum of y over the elements after the current one
+    for e in range(n_elem - 1, -1, -1):
+        o = e * g
+        for k in range(g):
+            acc = w_elem[k] * later
+            for i in range(g):
+                acc += run[i, k] * y[o + i]
+            out[o + k] = acc
+        for i in range(g):
+            later += y[o + i]
+
+
+@njit(cache=True, fastmath=True)
+def exact_eval(q, v, psi, w, run, w_elem, n_elem, m_scale, with_jv, M_out, h_out, btip_out, Jv_out, work):
+    """M_out += m M(q), h_out += m h(q, v), btip_out = B(1; q) and, if with_jv, Jv_out += m dh/dv.
+
+    The discrete kinetic energy is T = (m/2) sum_p w_p (x_dot_p^2 + w_dot_p^2) with x_dot_p = sum_i A_i(s_p) v_i,
+    A_i(s_p) = (R f_i)_p, R the running-integral matrix; h is exactly its Lagrangian convective force,
+    h_i = m sum_p w_p (A_ip a_x,p + B_ip a_w,p), a_x = R(-cos(theta) theta_dot^2), a_w = R(-sin(theta) theta_dot^2).
+    With with_jv the same h is summed in transposed order, h_i = -m sum_k theta_dot_k^2 G_ik with
+    G_i = cos(theta) R^T(w A_i) + sin(theta) R^T(w B_i), which also gives dh_i/dv_j = -2 m sum_k theta_dot_k psi_jk G_ik.
+    ``work`` is scratch of shape (3 n + 7, N)."""
+    n, npts = psi.shape
+    th, thd, c, s, f = work[0], work[1], work[2], work[3], work[4]
+    for p in range(npts):
+        a = 0.0
+        b = 0.0
+        for i in range(n):
+            a += q[i] * psi[i, p]
+            b += v[i] * psi[i, p]
+        th[p] = a
+        thd[p] = b
+        c[p] = np.cos(a)
+        s[p] = np.sin(a)
+    # rows 5 .. 5+n-1 of work hold A_i, 5+n .. 5+2n-1 hold B_i, 5+2n .. 5+3n-1 hold G_i; 5+3n, 6+3n: a_x, a_w
+    for i in range(n):
+        Ai = work[5 + i]
+        Bi = work[5 + n + i]
+        for p in range(npts):
+            f[p] = -s[p] * psi[i, p]
+        cumulative(f, run, w_elem, n_elem, Ai)
+        bt = 0.0
+        for p in range(npts):
+            f[p] = c[p] * psi[i, p]
+            bt += w[p] * f[p]
+        btip_out[i] = bt
+        cumulative(f, run, w_elem, n_elem, Bi)
+    if with_jv:
+        for i in range(n):
+            Ai = work[5 + i]
+            Bi = work[5 + n + i]
+            Gi = work[5 + 2 * n + i]
+            for p in range(npts):
+                f[p] = w[p] * Ai[p]
+            cumulative_T(f, run, w_elem, n_elem, Gi)
+            for p in range(npts):
+                Gi[p] *= c[p]
+                f[p] = w[p] * Bi[p]
+            cumulative_T(f, run, w_elem, n_elem, th)  # theta is no longer needed: scratch
+            hb = 0.0
+            for p in range(npts):
+                Gi[p] += s[p] * th[p]
+                hb += thd[p] * thd[p] * Gi[p]
+            h_out[i] -= m_scale * hb
+        for i in range(n):
+            Gi = work[5 + 2 * n + i]
+            for j in range(n):
+                acc = 0.0
+                for p in range(npts):
+                    acc += thd[p] * psi[j, p] * Gi[p]
+                Jv_out[i, j] -= 2.0 * m_scale * acc
+    else:
+        ax = work[5 + 3 * n]
+        aw = work[6 + 3 * n]
+        for p in range(npts):
+            f[p] = -c[p] * thd[p] * thd[p]
+        cumulative(f, run, w_elem, n_elem, ax)
+        for p in range(npts):
+            f[p] = -s[p] * thd[p] * thd[p]
+        cumulative(f, run, w_elem, n_elem, aw)
+        for i in range(n):
+            Ai = work[5 + i]
+            Bi = work[5 + n + i]
+            hb = 0.0
+            for p in range(npts):
+                hb += w[p] * (Ai[p] * ax[p] + Bi[p] * aw[p])
+            h_out[i] += m_scale * hb
+    for i in range(n):
+        Ai = work[5 + i]
+        Bi = work[5 + n + i]
+        for j in range(i, n):
+            Aj = work[5 + j]
+            Bj = work[5 + n + j]
+            acc = 0.0
+            for p in range(npts):
+                acc += w[p] * (Ai[p] * Aj[p] + Bi[p] * Bj[p])
+            M_out[i, j] += m_scale * acc
+            if j != i:
+                M_out[j, i] += m_scale * acc

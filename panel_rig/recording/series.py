@@ -1,0 +1,169 @@
+"""A rig recording as arrays: tip, airspeed, modal states, commands and the run's parameters.
+
+`load_series(bag_dir)` checks the bag's integrity first (every chunk CRC; see
+:mod:`panel_rig.recording.integrity`) and raises CorruptBagError naming `panel-rig bag recover` for a
+damaged or incomplete bag. The analysis of the arrays is in :mod:`panel_rig.analysis.bag_analysis`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from panel_rig.analysis.bag_analysis import SHAKER_TOPICS, mean_dt
+from panel_rig.config import PanelConfig
+from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.metadata import read_metadata
+from panel_rig.recording.reader import read_bag, read_metadata_records, summary_counts, verify_bag
+from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
+
+
+@dataclass
+class BagSeries:
+    """The series of a rig bag, on the tip sensor's time base (s, from the bag's log times)."""
+
+    bag_dir: Path
+    t_s: np.ndarray
+    tip_w_over_L: np.ndarray
+    airspeed_mps: np.ndarray
+    q: np.ndarray  # (N, n_modes); (N, 0) if no modal_states
+    force_npm: np.ndarray  # held shaker/force_cmd (zero-order hold), 0 before the first command
+    commands: dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
+    shapes: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
+    panel_length_m: float = field(default_factory=lambda: PanelConfig().panel_length_m)
+    length_source: str = "default"
+    parameters: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def dt_s(self) -> float:
+        """Mean sample interval (see :func:`panel_rig.analysis.bag_analysis.mean_dt`)."""
+        return mean_dt(self.t_s)
+
+
+def _parameters(bag_dir: Path, mcap_path: Path) -> dict[str, Any]:
+    """Run parameters: metadata.yaml custom_data, else the MCAP metadata record, else {}."""
+    try:
+        text = (read_metadata(bag_dir).get("custom_data") or {}).get(PARAMETERS_KEY)
+        if text:
+            return dict(json.loads(text))
+    except (RecordingError, ValueError, TypeError):
+        pass
+    try:
+        record = read_metadata_records(mcap_path).get(PARAMETERS_RECORD) or {}
+        return {k: json.loads(v) for k, v in record.items()}
+    except Exception:  # noqa: BLE001 - parameters are optional
+        return {}
+
+
+def _topics(mcap_path: Path) -> dict[str, str]:
+    """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
+    names = list(summary_counts(mcap_path))
+    wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", *SHAKER_TOPICS)
+    out: dict[str, str] = {}
+    for suffix in wanted:
+        match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
+        if match:
+            out[suffix] = match[0]
+    return out
+
+
+def _topics(mcap_path: Path) -> dict[str, str]:
+    """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
+    names = list(summary_counts(mcap_path))
+    wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", *SHAKER_TOPICS)
+    out: dict[str, str] = {}
+    for suffix in wanted:
+        match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
+        if match:
+            out[suffix] = match[0]
+    return out
+
+
+def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str]]:
+    """Check the bag is intact and holds the tip topic; returns (mcap path, topics)."""
+    bag_dir = Path(bag_dir)
+    if not bag_dir.exists():
+        raise RecordingError(f"{bag_dir}: no such bag directory")
+    mcap_path = verify_bag(bag_dir).path
+    topics = _topics(mcap_path)
+    if "tip_displacement" not in topics:
+        raise RecordingError(f"{bag_dir} has no tip_displacement topic: not a rig recording")
+    return mcap_path, topics
+
+
+#: stamps beyond this (about 11.6 days) are wall-clock (real-time mode); fast-mode bags carry simulated time from 0
+WALL_CLOCK_NS = 10**15
+
+
+def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
+    """Read tip, airspeed, modal states, commands (and panel shapes) from a rig bag.
+
+    Tip w/L uses the panel length of the run's parameters, else `PanelConfig().panel_length_m`.
+    Raises RecordingError (CorruptBagError for a damaged bag) with a one-line message.
+    """
+    bag_dir = Path(bag_dir)
+    mcap_path, topics = open_bag(bag_dir)
+    params = _parameters(bag_dir, mcap_path)
+    length = params.get("panel.length_m")
+    ok_length = isinstance(length, (int, float)) and not isinstance(length, bool) and length > 0
+    by_name = {v: k for k, v in topics.items() if k != "panel_shape" or shapes}
+    tip: list[tuple[float, float]] = []
+    air: list[tuple[float, float]] = []
+    modal: list[tuple[float, list[float]]] = []
+    commands: dict[str, list[tuple[float, float]]] = {}
+    shape_list: list[tuple[float, np.ndarray, np.ndarray]] = []
+    t0_ns: int | None = None
+    for topic, _, stamp_ns, msg in read_bag(bag_dir, topics=list(by_name)):
+        if t0_ns is None:  # a real-time run is stamped on the ROS clock: times from its first message
+            t0_ns = stamp_ns if stamp_ns > WALL_CLOCK_NS else 0
+        kind, t = by_name[topic], (stamp_ns - t0_ns) * 1e-9
+        if kind == "tip_displacement":
+            tip.append((t, msg.point.z))
+        elif kind == "airspeed":
+            air.append((t, msg.vector.x))
+        elif kind == "modal_states":
+            modal.append((t, list(msg.position)))
+        elif kind == "panel_shape":
+            shape_list.append((t, np.array([p.x for p in msg.points]), np.array([p.z for p in msg.points])))
+        else:
+            commands.setdefault(kind, []).append((t, float(msg.data)))
+    if len(tip) < 16:
+        raise RecordingError(f"{bag_dir}: only {len(tip)} tip_displacement samples, too few to analyse")
+    length_m = float(length) if ok_length else PanelConfig().panel_length_m
+    t_s = np.array([x[0] for x in tip])
+    w = np.array([x[1] for x in tip]) / length_m
+    return BagSeries(
+        bag_dir=bag_dir, t_s=t_s, tip_w_over_L=w, airspeed_mps=_interp(t_s, air),
+        q=_modal_on(t_s, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
+        commands=commands, shapes=shape_list, panel_length_m=length_m,
+        length_source="parameters" if ok_length else "default", parameters=params,
+    )
+
+
+def _interp(t_s: np.ndarray, samples: list[tuple[float, float]]) -> np.ndarray:
+    if not samples:
+        return np.full(t_s.size, np.nan)
+    arr = np.asarray(samples, dtype=float)
+    return np.interp(t_s, arr[:, 0], arr[:, 1])
+
+
+def _modal_on(t_s: np.ndarray, modal: list[tuple[float, list[float]]]) -> np.ndarray:
+    n = min((len(q) for _, q in modal), default=0)
+    if n == 0:
+        return np.zeros((t_s.size, 0))
+    times = np.array([m[0] for m in modal])
+    q = np.array([m[1][:n] for m in modal], dtype=float)
+    return np.column_stack([np.interp(t_s, times, q[:, i]) for i in range(n)])
+
+
+def _hold(t_s: np.ndarray, events: list[tuple[float, float]]) -> np.ndarray:
+    """Zero-order hold of (time, value) events on t_s; 0 before the first."""
+    if not events:
+        return np.zeros(t_s.size)
+    times = np.array([e[0] for e in events])
+    values = np.r_[0.0, [e[1] for e in events]]
+    return values[np.searchsorted(times, t_s, side="right")]

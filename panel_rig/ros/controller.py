@@ -1,0 +1,159 @@
+"""``panel-rig control``: the reference flutter-suppression controller, a separate ROS 2 node.
+
+It uses only what a real controller has: the measured tip (``tip_displacement``) and airspeed (``airspeed``). For
+every tip reading it runs the reference law (``panel_rig.analysis.control``: filtered tip-rate feedback, in
+discrete time at the reading rate) and publishes ``control/force_cmd`` (geometry_msgs/WrenchStamped,
+``wrench.force.z`` in N per metre span, ``header.stamp`` = the answered reading's stamp, so the rig measures the
+loop's latency). Run::
+
+    panel-rig control --ros-args -r __ns:=/rig [-p gain_nspm2:=0.4] [-p derivative_hz:=150.0]
+
+Parameters: ``gain_nspm2`` (N/m of force per m/s of tip velocity; 0 = design it at start from the physics
+parameters, ``--params FILE``, for ``design_delay_ms``), ``derivative_hz`` (derivative filter corner),
+``design_delay_ms`` (loop delay the design assumes), ``actuator_bandwidth_hz`` and ``max_force_npm`` (the rig's
+``control.*`` values: the command is clipped to the saturation, so the rig never rejects it), ``enabled``.
+The law is not gain-scheduled: one gain is stable from rest to its closed-loop flutter speed (checked at design);
+the airspeed is only reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+
+import rclpy
+from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
+
+from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
+from panel_rig.rig.control import ControlSettings
+
+NODE_NAME = "panel_rig_controller"
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+MAX_GAP_S = 0.05  # a longer gap between readings restarts the filter (no kick from a stale state)
+
+
+class Controller(Node):
+    """Tip reading in, force command out, one for one."""
+
+    def __init__(self, physics_files: Sequence[str] = (), **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        defaults = ControlSettings()
+        self.declare_parameter("gain_nspm2", 0.0)
+        self.declare_parameter("derivative_hz", 150.0)
+        self.declare_parameter("design_delay_ms", DESIGN_DELAY_S * 1e3)
+        self.declare_parameter("actuator_bandwidth_hz", defaults.bandwidth_hz)
+        self.declare_parameter("max_force_npm", defaults.max_force_npm)
+        self.declare_parameter("enabled", True)
+        gain = float(self.get_parameter("gain_nspm2").value)
+        derivative_hz = float(self.get_parameter("derivative_hz").value)
+        if gain <= 0:
+            gain = self._design(physics_files, derivative_hz)
+        self.law = ControlLaw(gain, derivative_hz)
+        self.discrete = DiscreteLaw(self.law)
+        self.max_force = float(self.get_parameter("max_force_npm").value)
+        self.enabled = bool(self.get_parameter("enabled").value)
+        self.pub = self.create_publisher(WrenchStamped, "control/force_cmd", COMMAND_QOS)
+        self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
+        self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
+        self._msg = WrenchStamped()
+        self._msg.header.frame_id = "panel_rig"
+        self._last_stamp_ns: int | None = None
+        self.airspeed_mps = math.nan
+        self.sent = 0
+        self.clipped = 0
+        self.create_timer(5.0, self._report)
+        self.get_logger().info(
+            f"controller up: F = -{gain:g} s/(1 + s/(2 pi {derivative_hz:g})) w [N/m per m/s], clip "
+            f"+-{self.max_force:g} N/m, {'enabled' if self.enabled else 'disabled'}")
+
+    def _design(self, physics_files: Sequence[str], derivative_hz: float) -> float:
+        from panel_rig.analysis.control import design_law
+        from panel_rig.config import load_config
+        from panel_rig.model.aeroelastic import AeroelasticModel
+
+        cfg = load_config(physics_files[-1] if physics_files else None)
+        design = design_law(AeroelasticModel(cfg), float(self.get_parameter("actuator_bandwidth_hz").value),
+                            float(self.get_parameter("design_delay_ms").value) * 1e-3, derivative_hz)
+        self.get_logger().info(
+            f"designed on the ROM: gain {design.law.gain_nspm2:g} N s/m^2; predicted flutter speed "
+            f"{design.open_loop_flutter_mps:.2f} -> {design.closed_loop_flutter_mps or math.inf:.2f} m/s")
+        return design.law.gain_nspm2
+
+    def _on_airspeed(self, msg: Vector3Stamped) -> None:
+        self.airspeed_mps = msg.vector.x
+
+    def _on_tip(self, msg: PointStamped) -> None:
+        st = msg.header.stamp
+        ns = st.sec * 1_000_000_000 + st.nanosec
+        last = self._last_stamp_ns
+        if last is not None and ns <= last:
+            return  # late or repeated reading (best effort): the answer to a newer one is out already
+        if last is None or ns - last > MAX_GAP_S * 1e9:
+            self.discrete.reset()
+        dt = 0.0 if last is None else (ns - last) * 1e-9
+        self._last_stamp_ns = ns
+        force = self.discrete.step(msg.point.z, dt)
+        if not math.isfinite(force):
+            self.discrete.reset()
+            return
+        if abs(force) > self.max_force:
+            force = math.copysign(self.max_force, force)
+            self.clipped += 1
+        if not self.enabled:
+            return
+        m = self._msg
+        m.header.stamp = st  # the answered reading's stamp: the rig measures the command's age from it
+        m.wrench.force.z = float(force)
+        self.pub.publish(m)
+        self.sent += 1
+
+    def _report(self) -> None:
+        self.get_logger().info(f"commands sent {self.sent}, clipped {self.clipped}, airspeed {self.airspeed_mps:.2f} m/s")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point (``panel-rig control``). argv excludes the program name."""
+    from rclpy.utilities import remove_ros_args
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="panel-rig control", description=__doc__.splitlines()[0])
+    parser.add_argument("--params", action="append", default=[], metavar="FILE",
+                        help="physics parameters for the design (default: the paper's)")
+    opts = parser.parse_args(remove_ros_args(["controller", *args])[1:])
+    stop = threading.Event()
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=["controller", *args], signal_handler_options=SignalHandlerOptions.NO)
+    for s in previous:
+        signal.signal(s, lambda *_: stop.set())
+    node = None
+    code = 0
+    try:
+        node = Controller(opts.params)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
+        node.get_logger().info(f"stopping: {node.sent} commands sent, {node.clipped} clipped")
+    except Exception as exc:  # noqa: BLE001 (one line and exit 2, never a traceback wall)
+        print(f"panel-rig control: {type(exc).__name__}: {exc}", file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,248 @@
+"""Damaged bags: chunk CRCs are checked, `analyze` refuses with one line naming `bag recover`, and
+`bag recover` rebuilds a bag that mcap (summary + mcap-ros2 decoding) and rosbags read again.
+Every case works on a copy of the reference bag in tmp_path."""
+
+from __future__ import annotations
+
+import ast
+import random
+import shutil
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("mcap_ros2")
+pytest.importorskip("rosbags")
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from panel_rig.cli import analyze_main
+from panel_rig.recording import CorruptBagError, main_bag_recover, read_bag, recover_bag, scan_mcap, verify_bag
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "bags" / "stiffness_staircase"
+MCAP = "stiffness_staircase_0.mcap"
+
+if not REFERENCE.is_dir():
+    pytest.skip("no reference bag", allow_module_level=True)
+
+
+def _copy(tmp_path: Path, name: str = "bag") -> tuple[Path, Path]:
+    dest = tmp_path / name
+    shutil.copytree(REFERENCE, dest, ignore=shutil.ignore_patterns("plots", "analysis.json"))
+    return dest, dest / MCAP
+
+
+def _flip_bit(path: Path, offset: int, bit: int = 4) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 1 << bit
+    path.write_bytes(data)
+
+
+def _flip_bytes(path: Path, n: int, seed: int) -> None:
+    data = bytearray(path.read_bytes())
+    rng = random.Random(seed)
+    for pos in rng.sample(range(len(data)), n):
+        data[pos] ^= rng.randrange(1, 256)
+    path.write_bytes(data)
+
+
+def _truncate(path: Path, fraction: float) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+
+
+def _mcap_count(path: Path) -> tuple[int, int]:
+    """(summary message count, decoded messages) through mcap's make_reader + the mcap-ros2 decoder."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        decoded = sum(1 for _ in reader.iter_decoded_messages())
+    assert summary is not None and summary.statistics is not None
+    return summary.statistics.message_count, decoded
+
+
+def _rosbags_counts(bag: Path) -> Counter:
+    from rosbags.highlevel import AnyReader
+
+    counts: Counter = Counter()
+    with AnyReader([bag]) as reader:
+        for conn, _, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] += 1
+    return counts
+
+
+def _refused(bag: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """`panel-rig analyze` exits 2 with exactly one stderr line naming `panel-rig bag recover`."""
+    assert analyze_main([str(bag)]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert "panel-rig bag recover" in lines[0] and "Error" not in lines[0], lines[0]
+    assert captured.out == ""
+    return lines[0]
+
+
+def _reference_total() -> int:
+    with open(REFERENCE / MCAP, "rb") as f:
+        return make_reader(f).get_summary().statistics.message_count
+
+
+# ------------------------------------------------------------------------------ the intact bag
+def test_reference_bag_is_intact() -> None:
+    scan = scan_mcap(REFERENCE / MCAP)
+    assert scan.ok and scan.problems == [] and scan.summary_crc == "ok"
+    assert len(scan.chunks) > 10 and all(c.ok for c in scan.chunks)
+    assert len(scan.messages) == _reference_total()
+    assert verify_bag(REFERENCE) is not None
+
+
+# ------------------------------------------------------------------------------ one flipped bit
+def test_one_flipped_bit_is_found_refused_and_recovered(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rosbags.highlevel import AnyReader
+
+    bag, path = _copy(tmp_path)
+    total = _reference_total()
+    offset = path.stat().st_size // 2
+    _flip_bit(path, offset)
+    original = path.read_bytes()
+    # the corrupt chunk is named: index, byte range containing the flip, time range
+    scan = scan_mcap(path)
+    assert not scan.ok and scan.complete  # the summary itself is intact
+    (bad,) = scan.bad_chunks
+    assert bad.offset <= offset < bad.offset + bad.length and "CRC mismatch" in bad.problem
+    assert 0 < bad.messages < total and sum(bad.topic_counts.values()) == bad.messages
+    line = _refused(bag, capsys)
+    assert f"chunk {bad.index} at byte {bad.offset}" in line and " s, " in line  # time range
+    with pytest.raises(CorruptBagError, match="bag recover"):
+        list(read_bag(bag))  # our reader checks CRCs too
+    with pytest.raises(Exception, match="[Cc]hecksum"):  # the independent reader refuses it
+        with AnyReader([bag]) as reader:
+            for _ in reader.messages():
+                pass
+
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert f"recovered {total - bad.messages} messages" in out[0] and "dropped 1 corrupt chunk" in out[0]
+    assert len(out) == 2 and f"chunk {bad.index} at byte {bad.offset}" in out[1] and "/rig/tip_displacement" in out[1]
+    assert (bag / (MCAP + ".broken")).read_bytes() == original
+    assert _mcap_count(path) == (total - bad.messages, total - bad.messages)
+    assert sum(_rosbags_counts(bag).values()) == total - bad.messages
+    assert scan_mcap(path).ok and recover_bag(bag).was_complete
+    assert analyze_main([str(bag), "--json"]) == 0  # 2.8 s of 52 s lost: still analysable
+    capsys.readouterr()
+
+
+# ------------------------------------------------------------------------------ many flipped bytes
+@pytest.mark.parametrize("seed", range(6))
+def test_200_flipped_bytes_never_raise(tmp_path: Path, capsys: pytest.CaptureFixture[str], seed: int) -> None:
+    bag, path = _copy(tmp_path)
+    _flip_bytes(path, 200, seed)
+    _refused(bag, capsys)
+    report = recover_bag(bag)
+    assert not report.was_complete and report.dropped_chunks >= 1 and report.dropped
+    assert _mcap_count(path) == (report.messages, report.messages)
+    assert sum(_rosbags_counts(bag).values()) == report.messages
+    assert analyze_main([str(bag)]) == 2  # (almost) nothing left: refused, still one line
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_few_flipped_bytes_keep_the_intact_chunks(tmp_path: Path) -> None:
+    """5 flipped bytes: exactly the chunks that hold them are dropped, all others kept."""
+    bag, path = _copy(tmp_path)
+    chunks = scan_mcap(path).chunks
+    rng = random.Random(7)
+    targets = rng.sample(chunks[1:], 3)  # chunk 0 holds the schemas: keep it
+    data = bytearray(path.read_bytes())
+    for c in targets:
+        data[c.offset + c.length - 100] ^= 0x55  # inside the chunk's records
+    path.write_bytes(data)
+    report = recover_bag(bag)
+    dropped = sorted(c.index for c in targets)
+    assert report.dropped_chunks == 3
+    assert all(f"chunk {i} at" in d for i, d in zip(dropped, report.dropped, strict=True))
+    kept = sum(c.messages for c in chunks if c.index not in dropped)
+    assert report.messages == kept == sum(_rosbags_counts(bag).values())
+
+
+def test_broken_record_length_is_skipped_to_the_next_good_chunk(tmp_path: Path) -> None:
+    """A damaged chunk length breaks the framing; the scan resynchronises on the next chunk."""
+    bag, path = _copy(tmp_path)
+    chunks = scan_mcap(path).chunks
+    victim = chunks[5]
+    _flip_bit(path, victim.offset + 1 + 5, bit=3)  # a high byte of the record length
+    scan = scan_mcap(path)
+    assert [c.offset for c in scan.chunks if c.ok] == [c.offset for c in chunks if c is not victim]
+    report = recover_bag(bag)
+    assert report.messages == sum(c.messages for c in chunks if c is not victim)
+    assert _mcap_count(path)[0] == report.messages == sum(_rosbags_counts(bag).values())
+
+
+# ------------------------------------------------------------------------------ truncated file
+def test_truncated_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bag, path = _copy(tmp_path)
+    _truncate(path, 0.6)
+    line = _refused(bag, capsys)
+    assert "no summary" in line
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out
+    report = recover_bag(bag)
+    assert report.was_complete and "discarded" in out and "trailing bytes" in out
+    assert 0.5 * _reference_total() < report.messages < 0.6 * _reference_total()
+    assert _mcap_count(path) == (report.messages, report.messages)
+    assert sum(_rosbags_counts(bag).values()) == report.messages
+
+
+def test_cli_subprocess_prints_no_traceback(tmp_path: Path) -> None:
+    bag, path = _copy(tmp_path)
+    _flip_bytes(path, 200, seed=0)  # used to end in a UnicodeDecodeError
+    proc = subprocess.run([sys.executable, "-m", "panel_rig.cli", "analyze", str(bag)],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and "panel-rig bag recover" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+# ------------------------------------------------------------------------------ layering
+ORDER = ["config", "model", "analysis", "rig", "ros", "recording", "viz", "cli"]
+
+
+def _imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("panel_rig."):
+            out.add(node.module.split(".")[1])
+        elif isinstance(node, ast.Import):
+            out |= {a.name.split(".")[1] for a in node.names if a.name.startswith("panel_rig.")}
+    return out
+
+
+@pytest.mark.parametrize("layer", ["analysis", "recording"])
+def test_layers_import_only_from_above(layer: str) -> None:
+    allowed = set(ORDER[: ORDER.index(layer) + 1])
+    for path in sorted((ROOT / "panel_rig" / layer).glob("*.py")):
+        bad = _imports(path) - allowed
+        assert not bad, f"{path.name} imports {bad}"
+
+
+def test_panel_length_fallback_is_the_config_default(tmp_path: Path) -> None:
+    from geometry_msgs.msg import PointStamped, Vector3Stamped
+
+    from panel_rig.config import PanelConfig
+    from panel_rig.recording import BagWriter
+    from panel_rig.recording.series import load_series
+
+    with BagWriter(tmp_path / "nolen") as writer:  # no parameters record
+        for k in range(32):
+            tip, air = PointStamped(), Vector3Stamped()
+            tip.point.z = 0.001 * k
+            writer.write("/rig/tip_displacement", tip, k + 1)
+            writer.write("/rig/airspeed", air, k + 1)
+    rec = load_series(tmp_path / "nolen")
+    assert rec.length_source == "default" and rec.panel_length_m == PanelConfig().panel_length_m
+    assert rec.tip_w_over_L[10] == pytest.approx(0.01 / PanelConfig().panel_length_m)
