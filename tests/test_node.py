@@ -264,8 +264,11 @@ def test_airspeed_follows_command_with_first_order_lag(fast_node: subprocess.Pop
     t0 = t1 + TAU_S * math.log(1.0 - v1 / v_cmd)  # when the set-point was applied
     model = v_cmd * (1.0 - np.exp(-(moving[:, 0] - t0) / TAU_S))
     assert np.max(np.abs(moving[:, 1] - model)) < 0.005 * v_cmd
-    at_tau = np.interp(t0 + TAU_S, moving[:, 0], moving[:, 1])
-    assert at_tau == pytest.approx(v_cmd * (1 - math.exp(-1)), rel=0.005)
+    # the time constant itself, fitted on the samples received (best-effort samples may be missing: a fit, not an
+    # interpolation across a gap): ln(1 - v/v_cmd) = -(t - t0)/tau
+    rising = moving[moving[:, 1] < 0.95 * v_cmd]
+    slope = np.polyfit(rising[:, 0], np.log(1.0 - rising[:, 1] / v_cmd), 1)[0]
+    assert -1.0 / slope == pytest.approx(TAU_S, rel=0.005)
     client.publish("airspeed_cmd", 0.0)
 
 
@@ -616,7 +619,9 @@ def test_real_time_node_parameters_round_trip_and_ros_clock_stamps(
     try:
         client.wait(lambda: len(stamps) >= 200, 30.0, "real-time tip readings")
         assert stamps[-1] > 1e9  # the ROS clock (epoch time), not simulated time from 0
-        assert float(np.median(delays[-200:])) < 0.02, f"median delay {np.median(delays[-200:]):.4f} s"
+        # a few ms on a quiet machine; under load the rig may trail the clock by up to max_lag_s before it counts
+        # an overrun and re-anchors (the stamps follow), so that is the bound
+        assert float(np.median(delays[-200:])) < NODE_PARAMS["max_lag_s"].default, f"median delay {np.median(delays[-200:]):.4f} s"
 
         results = load_parameters(client, remote, ROOT / "config" / "rig.yaml")
         assert len(results) == len(NODE_PARAMS) and all(ok for _, ok, _ in results), [r for r in results if not r[1]]
