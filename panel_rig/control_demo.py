@@ -34,6 +34,10 @@ ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
 ONSET_FACTORS = (0.95, 0.975, 1.0, 1.025, 1.05)  # x predicted closed-loop U_f
 SETTLE_S, WINDOW_S = 1.0, 3.0  # per onset step: tunnel settling, then the growth-rate window after a tap
+#: onset taps, N/m for 20 ms: ten times the quiet check's, so the free response stands ~10x above the response
+#: to the tunnel's turbulence (at the 0.05 N/m of the quiet check the two are alike and the envelope's growth rate
+#: measures the turbulence, not the closed loop)
+ONSET_TAP_NPM = 0.5
 RATE_HZ = 500.0
 
 
@@ -189,11 +193,13 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         # 2. onset
         rates = []
         for fac in ONSET_FACTORS:
+            if client.diag.get("state") != "running":
+                break  # the flutter reached the tip limit and the rig aborted: the onset lies below this step
             u = fac * pred.speed_mps
             client.send("airspeed_cmd", u)
             client.wait(lambda u=u: abs(client.airspeed - u) < 1e-3 * u, 60.0, f"the tunnel at {u:.2f} m/s")
             client.wait_sim(SETTLE_S)
-            t0 = client.tap()
+            t0 = client.tap(ONSET_TAP_NPM)
             client.wait_sim(WINDOW_S)
             t, w = client.window(t0 + 0.5, t0 + WINDOW_S)
             g = envelope_growth_rate(t, w) if t.size > 50 else math.nan
