@@ -71,18 +71,6 @@ def _topics(mcap_path: Path) -> dict[str, str]:
     return out
 
 
-def _topics(mcap_path: Path) -> dict[str, str]:
-    """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
-    names = list(summary_counts(mcap_path))
-    wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", *SHAKER_TOPICS)
-    out: dict[str, str] = {}
-    for suffix in wanted:
-        match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
-        if match:
-            out[suffix] = match[0]
-    return out
-
-
 def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str]]:
     """Check the bag is intact and holds the tip topic; returns (mcap path, topics)."""
     bag_dir = Path(bag_dir)
