@@ -337,6 +337,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 def cmd_study(args: argparse.Namespace) -> int:
     try:
+        import panel_rig.studies.runner  # noqa: F401 (dask, xarray, zarr: the 'study' extra)
         from panel_rig.studies.command import run
     except ImportError as exc:
         raise UsageError(f"panel-rig study needs the 'study' extra (pip install -e '.[study]'): {exc}") from None
