@@ -15,7 +15,8 @@ import time
 from typing import Any
 
 
-def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | None = None) -> dict[str, float]:
+def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | None = None,
+         variant: str = "full") -> dict[str, float]:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -28,6 +29,7 @@ def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | No
         context=ctx,
         parameter_overrides=[
             Parameter("fast", value=fast),
+            Parameter("model.variant", value=variant),
             Parameter("tunnel.time_constant_s", value=0.2),
             Parameter("safety.max_tip_w_over_L", value=1.9),
             Parameter("safety.wall_clearance_m", value=10.0),
@@ -63,6 +65,8 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
     fast = _run(True, fast_duration_s, airspeed_mps)
     with tempfile.TemporaryDirectory() as tmp:  # recording (rosbag2 MCAP) and Rerun (.rrd) both on
         fast_sinks = _run(True, fast_duration_s, airspeed_mps, sinks_dir=tmp)
+    with tempfile.TemporaryDirectory() as tmp:  # the exact (elastica) structure, recording and Rerun on
+        exact_sinks = _run(True, fast_duration_s, airspeed_mps, sinks_dir=tmp, variant="exact")
     return {
         "airspeed_mps": airspeed_mps,
         "duration_s": duration_s,
@@ -75,6 +79,7 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
         "fast_realtime_factor": round(fast["realtime_factor"], 2),
         "fast_sim_s": round(fast["sim_time_s"], 2),
         "fast_realtime_factor_all_sinks": round(fast_sinks["realtime_factor"], 2),
+        "fast_exact_realtime_factor_all_sinks": round(exact_sinks["realtime_factor"], 2),
     }
 
 
