@@ -173,3 +173,23 @@ def model_flutter_speed(model: AeroelasticModel, aero: str = "rom", rom_modes: i
             return brentq(zeta, u_prev, u, xtol=1e-6), mode + 1
         u_prev = u
     return None
+
+
+def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: str = ""):
+    """V-g (damping ratio) and V-f (frequency) of the tracked structural modes, one line per mode; PNG."""
+    from panel_rig.analysis.plots import _save, plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    u = vg.airspeed_mps
+    for i in range(vg.poles.shape[1]):
+        ax1.plot(u, vg.damping_ratio[:, i], "o-", ms=3, label=f"mode {i + 1}")
+        ax2.plot(u, vg.frequency_hz[:, i], "o-", ms=3, label=f"mode {i + 1}")
+    for ax in (ax1, ax2):
+        if flutter_speed_mps is not None:
+            ax.axvline(flutter_speed_mps, color="k", ls=":", lw=1, label=f"U_f = {flutter_speed_mps:.3f} m/s")
+        ax.set_xlabel("airspeed, m/s")
+        ax.legend(fontsize=8)
+    ax1.axhline(0, color="k", lw=0.5)
+    ax1.set(ylabel="damping ratio zeta = -Re s / |s|", title=f"V-g {title}".strip())
+    ax2.set(ylabel="natural frequency |s| / 2 pi, Hz", title=f"V-f {title}".strip())
+    return _save(fig, path)
