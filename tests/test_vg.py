@@ -10,8 +10,7 @@ import pytest
 import scipy.linalg
 
 from panel_rig.analysis.flutter import find_flutter
-from panel_rig.analysis.vg import (ModalTracker, model_flutter_speed, pole_damping_ratio, pole_frequency_hz,
-                                   pole_from_modal, vg_diagram)
+from panel_rig.analysis.vg import ModalTracker, model_flutter_speed, pole_damping_ratio, pole_frequency_hz, pole_from_modal, vg_diagram
 
 
 @pytest.fixture(scope="module")

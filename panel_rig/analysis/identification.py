@@ -169,14 +169,26 @@ class SegmentCovariances:
 class SSISettings:
     """Defaults suit one sensor channel sampled at ~4-10 times the highest frequency of interest."""
 
-    block_rows: int = 40
+    def rows(self, dt_s: float, bands_hz: Sequence[tuple[float, float]]) -> int:
+        if self.block_rows is not None:
+            return self.block_rows
+        return max(40, int(np.ceil(1.0 / (dt_s * min(b[0] for b in bands_hz)))))
+
+
+    #: block rows i of the Toeplitz matrix (lags 1 .. 2i-1); None: enough to span one period of the lowest band
+    #: edge and at least 40 (a heavily damped low mode is biased when the lags cover less than its period)
+    block_rows: int | None = None
     orders: tuple[int, ...] = tuple(range(4, 41, 2))
     n_segments: int = 10
+    #: a mode needs stable poles at this fraction of the order steps at least (physical modes: nearly all;
+    #: noise poles that happen to repeat: a few)
+    min_stable_fraction: float = 0.3
 
 
-def _band_estimate(poles_by_order: dict[int, np.ndarray], band: tuple[float, float]) -> tuple[complex, int] | None:
+def _band_estimate(poles_by_order: dict[int, np.ndarray], band: tuple[float, float], min_stable: int
+                   ) -> tuple[complex, int] | None:
     st = stable_poles(poles_by_order, band)
-    if st.size == 0:
+    if st.size == 0 or st.size < min_stable:
         return None
     f, z = np.median(pole_frequency_hz(st)), np.median(pole_damping_ratio(st))
     return complex(pole_from_modal(f, z)), st.size
@@ -185,15 +197,17 @@ def _band_estimate(poles_by_order: dict[int, np.ndarray], band: tuple[float, flo
 def identify_ssi_covariances(covs: Sequence[np.ndarray], dt_s: float, bands_hz: Sequence[tuple[float, float]],
                              settings: SSISettings = SSISettings()) -> list[ModalEstimate | None]:
     """SSI-cov on the mean of per-segment covariances; per band the stable-pole median and a leave-one-segment-
-    out jackknife standard error (None for a band with no stable pole)."""
+    out jackknife standard error (None for a band without a mode: fewer stable poles than
+    ``settings.min_stable_fraction`` of the order steps)."""
     covs = np.asarray(covs)
     nseg = covs.shape[0]
     if nseg < 2:
         raise ValueError("need at least two segments for an interval")
 
     def run(R: np.ndarray) -> list[tuple[complex, int] | None]:
-        pbo = ssi_poles(R, dt_s, settings.orders, settings.block_rows)
-        return [_band_estimate(pbo, b) for b in bands_hz]
+        pbo = ssi_poles(R, dt_s, settings.orders, min(settings.rows(dt_s, bands_hz), R.shape[0] // 2))
+        min_stable = int(np.ceil(settings.min_stable_fraction * (len(pbo) - 1)))
+        return [_band_estimate(pbo, b, min_stable) for b in bands_hz]
 
     full = run(covs.mean(axis=0))
     total = covs.sum(axis=0)
@@ -219,16 +233,22 @@ def identify_ssi(y: np.ndarray, dt_s: float, bands_hz: Sequence[tuple[float, flo
                  settings: SSISettings = SSISettings(), max_rate_hz: float | None = None
                  ) -> list[ModalEstimate | None]:
     """Output-only identification of the mode in each band from a response record (e.g. the tip under
-    turbulence). ``max_rate_hz``: decimate first to the lowest integer-factor rate >= it (default: 8 x the highest
-    band edge). The record is cut into ``settings.n_segments`` equal segments (see SegmentCovariances)."""
+    turbulence). Each band is processed on its own: decimated to the lowest integer-factor rate >= ``max_rate_hz``
+    (default 8 x the band's upper edge), cut into ``settings.n_segments`` equal segments, one covariance array per
+    segment (as a live monitor keeps them, see SegmentCovariances), then identify_ssi_covariances. Per-band rates
+    keep a lightly damped mode well resolved by 40-odd block rows. A heavily damped mode (zeta ~ 0.4) needs a
+    higher rate than 8 x its band (its covariance dies within 1/(zeta omega): pass ``max_rate_hz`` ~ 50-60 x its
+    frequency) and even then its estimate scatters by ~5-10 % from a 600 s record (docs/validation.md)."""
     y = np.asarray(y, float)
-    rate = max_rate_hz if max_rate_hz is not None else 8.0 * max(b[1] for b in bands_hz)
-    y, dt_s = decimate(y, dt_s, rate)
-    n = y.shape[0] // settings.n_segments
-    acc = SegmentCovariances(dt_s, 2 * settings.block_rows)
-    for k in range(settings.n_segments):
-        acc.add(y[k * n : (k + 1) * n])
-    return identify_ssi_covariances(acc.covs, dt_s, bands_hz, settings)
+    out: list[ModalEstimate | None] = []
+    for band in bands_hz:
+        yb, dtb = decimate(y, dt_s, max_rate_hz if max_rate_hz is not None else 8.0 * band[1])
+        n = yb.shape[0] // settings.n_segments
+        acc = SegmentCovariances(dtb, 2 * settings.rows(dtb, [band]))
+        for k in range(settings.n_segments):
+            acc.add(yb[k * n : (k + 1) * n])
+        out += identify_ssi_covariances(acc.covs, dtb, [band], settings)
+    return out
 
 
 # ---- free decay ---------------------------------------------------------------------------------------
@@ -236,8 +256,8 @@ def era_poles(y: np.ndarray, dt_s: float, order: int, rows: int | None = None) -
     """Eigensystem realisation on a free response y (1-D): poles (Im >= 0, real ones included) of a model of the
     given order."""
     y = np.asarray(y, float)
-    rows = rows if rows is not None else min(max(2 * order, y.size // 3), 10 * order)
-    cols = y.size - rows
+    rows = rows if rows is not None else min(max(2 * order, y.size // 3), 6 * order)
+    cols = min(y.size - rows, 10 * rows)  # ERA only starts the least-squares fit: a small Hankel matrix is enough
     if cols < order + 1:
         raise ValueError("free-decay record too short for ERA")
     H = scipy.linalg.hankel(y[:rows], y[rows - 1 : rows - 1 + cols])
