@@ -74,7 +74,17 @@ def cmd_flutter(args: argparse.Namespace) -> int:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}
     payload.update(aero=args.aero, rom_modes=kw["rom_modes"], formulation=args.formulation)
-    if args.plot:
+    vg = None
+    if args.vg:
+        from panel_rig.analysis.vg import model_flutter_speed, plot_vg, vg_diagram
+
+        # the stepper's continuous-time model with the ROM (the aero the rig runs), whatever --aero says
+        vg = vg_diagram(model, _range(args.vg, "--vg"), aero="rom", rom_modes=rom_modes)
+        payload["vg"] = vg.as_json()
+        if args.plot:
+            uf = model_flutter_speed(model, aero="rom", rom_modes=rom_modes)
+            payload["plot"] = str(plot_vg(vg, args.plot, uf[0] if uf else None, f"(ROM Ra={rom_modes})"))
+    if args.plot and vg is None:
         from panel_rig.analysis.plots import plot_flutter_roots
 
         speeds = np.linspace(1.0, 20.0, 39)
@@ -90,10 +100,17 @@ def cmd_flutter(args: argparse.Namespace) -> int:
 
     def table() -> str:
         if fp is None:
-            return "no flutter found up to 60 m/s"
-        return (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
-                f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
-                f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+            text = "no flutter found up to 60 m/s"
+        else:
+            text = (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
+                    f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
+                    f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+        if vg is not None:
+            n = vg.poles.shape[1]
+            text += "\n\n U (m/s)" + "".join(f"   f{i + 1} (Hz)  zeta{i + 1}  " for i in range(n)) + "\n" + "\n".join(
+                f"{u:8.2f}" + "".join(f"  {f:9.3f} {z:8.5f}" for f, z in zip(fr, zr))
+                for u, fr, zr in zip(vg.airspeed_mps, vg.frequency_hz, vg.damping_ratio))
+        return text
 
     _emit(args, payload, table)
     return 0
@@ -231,13 +248,13 @@ def cmd_lco(args: argparse.Namespace) -> int:
     return 0
 
 
-def _range(text: str) -> np.ndarray:
+def _range(text: str, option: str = "--airspeeds") -> np.ndarray:
     try:
         a, b, c = (float(x) for x in text.split(":"))
     except ValueError:
-        raise UsageError(f"--airspeeds expects START:STOP:STEP, got {text!r}") from None
+        raise UsageError(f"{option} expects START:STOP:STEP, got {text!r}") from None
     if c <= 0 or b < a:
-        raise UsageError(f"--airspeeds needs STOP >= START and STEP > 0, got {text!r}")
+        raise UsageError(f"{option} needs STOP >= START and STEP > 0, got {text!r}")
     return np.array([_airspeed(u) for u in np.arange(a, b + 0.5 * c, c)])
 
 
@@ -525,7 +542,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",
                    help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus); with "
-                   "--control: open- vs closed-loop damping")
+                   "--control: open- vs closed-loop damping; with --vg the V-g and V-f diagram instead")
+    p.add_argument("--vg", metavar="LO:HI:STEP",
+                   help="V-g/V-f: each structural mode's frequency and damping ratio per airspeed (the stepper's "
+                        "continuous-time model, ROM aero; modes tracked by continuity); JSON key vg")
     p.add_argument("--control", action="store_true",
                    help="closed loop with the reference controller, the control actuator and the loop delay")
     p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
