@@ -106,7 +106,8 @@ def flutter_margin_speed(airspeeds_mps: np.ndarray, poles_a: np.ndarray, poles_b
 
 
 def _percentiles(samples: np.ndarray, level: float) -> tuple[float, float]:
-    lo, hi = np.percentile(samples, [50 * (1 - level), 50 * (1 + level)])
+    # no interpolation between order statistics: draws with no crossing (inf) give an open (inf) bound, not NaN
+    lo, hi = np.quantile(samples, [0.5 * (1 - level), 0.5 * (1 + level)], method="inverted_cdf")
     return float(lo), float(hi)
 
 

@@ -1,0 +1,72 @@
+"""The flutter-test procedure (``panel_rig.analysis.flutter_test``) on an in-process Rig: no ROS, the same
+turbulence, sensor and safety as the node's rig. Used by the unit tests and as the node-equivalent driver."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from panel_rig.analysis.flutter_test import (
+    Decision,
+    FlutterTestResult,
+    FlutterTestSettings,
+    TestPoint,
+    bands_from_model,
+    run_procedure,
+)
+from panel_rig.config import PanelConfig
+from panel_rig.rig.rig import RUNNING, Rig, TunnelSettings, tunnel_extras
+from panel_rig.rig.safety import SafetyLimits
+
+#: a plateau counts as fluttered when the measured tip exceeds this fraction of the panel length (the turbulence
+#: response below U_f is tens of micrometres, the LCO tenths of L) or the rig aborted
+FLUTTER_TIP_FRACTION = 0.02
+
+
+def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
+    return bool(aborted or (tip_m.size and np.max(np.abs(tip_m)) > FLUTTER_TIP_FRACTION * panel_length_m))
+
+
+def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4
+                ) -> Callable[[float], tuple[np.ndarray, float, None, bool]]:
+    """``measure(U)`` for :func:`run_procedure`: command U, march the run-in, then the dwell, sampled every
+    ``steps_per_sample`` physics steps (block march). Returns the measured tip of the dwell."""
+    dt = rig.dt_s * steps_per_sample
+
+    def measure(u: float) -> tuple[np.ndarray, float, None, bool]:
+        if not rig.command_airspeed(u).accepted:
+            return np.zeros(0), dt, None, True
+        settle = rig.advance_samples([steps_per_sample] * int(round(settings.settle_s / dt)))
+        blk = rig.advance_samples([steps_per_sample] * int(round(settings.dwell_s / dt)))
+        tip = np.concatenate([settle.tip_w_m, blk.tip_w_m])
+        return blk.tip_w_m, dt, None, fluttered(tip, rig.panel_length_m, rig.state != RUNNING)
+
+    return measure
+
+
+def default_plan(uf_model_mps: float, margin: float = 0.1, start_mps: float | None = None,
+                 **changes) -> FlutterTestSettings:
+    """Test plan from the pre-test model's U_f: start at half of it, steps of a tenth of it."""
+    return FlutterTestSettings(start_mps=start_mps if start_mps is not None else 0.5 * uf_model_mps,
+                               step_mps=0.1 * uf_model_mps, margin=margin, **changes)
+
+
+def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,
+               margin: float = 0.1, start_mps: float | None = None,
+               on_point: Callable[[TestPoint, Decision], None] | None = None
+               ) -> tuple[FlutterTestResult, float]:
+    """The whole procedure on a fresh in-process Rig of ``cfg``; returns (result, the model's linear U_f)."""
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+
+    st = Stepper(cfg, variant=variant)
+    found = model_flutter_speed(st.model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s")
+    uf, mode = found
+    settings = settings or default_plan(uf, margin, start_mps)
+    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
+                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
+    rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
+    return run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
