@@ -396,6 +396,19 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
 }
 
 
+def cmd_flutter_test(args: argparse.Namespace) -> int:
+    from panel_rig.flutter_cli import format_flutter_test, run_flutter_test
+
+    if not 0 < args.margin < 1:
+        raise UsageError("--margin must be in (0, 1)")
+    cfg = _config(args)
+    out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
+                           params={"set": " ".join(args.set or ()), "params": args.params or ""},
+                           dwell_s=args.dwell)
+    _emit(args, out, lambda: format_flutter_test(out))
+    return 1 if out["fluttered"] else 0
+
+
 def cmd_bag_recover(args: argparse.Namespace) -> int:
     from panel_rig.recording.recover import main_bag_recover
 
@@ -626,6 +639,18 @@ def build_parser() -> argparse.ArgumentParser:
     r = bag.add_parser("recover", help="rebuild a readable bag from a killed or corrupt recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)
+
+    p = sub.add_parser("flutter-test", help="automatic flutter clearance: step up, identify, predict, stop short")
+    _common(p)
+    p.add_argument("--variant", choices=tuple(VARIANTS), default="full")
+    p.add_argument("--start-mps", type=float, metavar="U0", help="first test point (default: half the model's U_f)")
+    p.add_argument("--margin", type=float, default=0.1, metavar="M", help="required speed margin (default 0.1)")
+    p.add_argument("--dwell", type=float, metavar="S", help="seconds of response per test point (default 200)")
+    p.add_argument("--bag-dir", default="bags", help="directory for the recording (default bags)")
+    p.add_argument("--plot", default="out/flutter_test/vg.png", metavar="FILE.png",
+                   help="V-g plot with the extrapolation (default out/flutter_test/vg.png)")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording (readings and the monitor)")
+    p.set_defaults(func=cmd_flutter_test)
 
     p = sub.add_parser("analyze", help="airspeed plateaus, LCO and flutter onset from a recorded bag")
     add_analyze_arguments(p)

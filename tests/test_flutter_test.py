@@ -80,3 +80,26 @@ def test_procedure_on_the_rig_stops_short_and_predicts_the_flutter_speed(paper_r
 def test_default_plan_starts_at_half_the_model_speed():
     s = default_plan(10.0)
     assert s.start_mps == 5.0 and s.step_mps == 1.0 and s.margin == 0.1
+
+
+def test_cli_flutter_test_json_with_a_set_and_a_replayable_bag(tmp_path, capsys):
+    """`panel-rig flutter-test --set panel.thickness_m=0.0004 --json` (short dwell to bound the test): the JSON keys
+    of the issue, no flutter, airspeeds below the model's U_f, a bag with the measured tip and the monitor."""
+    import json
+
+    from panel_rig.cli import main
+    from panel_rig.recording.series import load_series
+
+    code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", "30", "--json", "--bag-dir",
+                 str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["fluttered"] is False
+    for key in ("test_points", "predicted_flutter_speed_mps", "predicted_flutter_speed_ci_mps", "max_airspeed_mps",
+                "fluttered", "bag"):
+        assert key in out
+    assert set(out["test_points"][0]) >= {"airspeed_mps", "frequency_hz", "damping_ratio", "damping_ci"}
+    assert out["model_flutter_speed_mps"] > 11.0  # thicker panel: later flutter than the paper's 10.48 m/s
+    assert out["max_airspeed_mps"] < out["model_flutter_speed_mps"]
+    assert (tmp_path / "vg.png").stat().st_size > 0
+    rec = load_series(out["bag"])
+    assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=0.1)

@@ -38,7 +38,9 @@ def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int =
         if not rig.command_airspeed(u).accepted:
             return np.zeros(0), dt, None, True
         settle = rig.advance_samples([steps_per_sample] * int(round(settings.settle_s / dt)))
+        rig.emit_block(settle)  # to the rig's sinks (bag, viewer), as the node publishes its blocks
         blk = rig.advance_samples([steps_per_sample] * int(round(settings.dwell_s / dt)))
+        rig.emit_block(blk)
         tip = np.concatenate([settle.tip_w_m, blk.tip_w_m])
         return blk.tip_w_m, dt, None, fluttered(tip, rig.panel_length_m, rig.state != RUNNING)
 
