@@ -110,8 +110,8 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
         if writer is not None:
             writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
                          messages.stamp_ns(rig.time_s), qos="reliable")
-        if viz is not None and hasattr(viz, "log_flutter_point"):
-            viz.log_flutter_point(rig.time_s, point, decision)
+        if viz is not None:
+            viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
 
     try:
         res = run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point)
@@ -142,6 +142,7 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from panel_rig.analysis.flutter_test import trend_curve
     from panel_rig.analysis.vg import vg_diagram
 
     path = Path(path)
@@ -164,11 +165,9 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
         f = np.array([p.flutter.frequency_hz for p in pts])
         ax_f.plot(u, f, "o", color="C0")
         d = res.final
-        if d is not None and d.trend is not None and len(pts) >= 3:
-            c = np.polyfit(u**2, z, 2)
-            uu = np.linspace(u.min(), max(u.max(), min(d.trend.speed_mps, u_hi) if np.isfinite(d.trend.speed_mps)
-                                          else u.max()), 50)
-            ax_z.plot(uu, np.polyval(c, uu**2), "--", color="C1", label="damping trend (quadratic in q)")
+        curve = trend_curve(res.points, d)
+        if curve is not None:
+            ax_z.plot(*curve, "--", color="C1", label="damping trend (quadratic in q)")
         if d is not None and d.prediction is not None and np.isfinite(d.prediction.speed_mps):
             lo, hi = d.prediction.ci_mps
             ax_z.axvspan(lo, min(hi, u_hi), color="C3", alpha=0.15)

@@ -103,3 +103,32 @@ def test_cli_flutter_test_json_with_a_set_and_a_replayable_bag(tmp_path, capsys)
     assert (tmp_path / "vg.png").stat().st_size > 0
     rec = load_series(out["bag"])
     assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=0.1)
+
+
+def test_monitor_message_and_rerun_drawing_of_synthetic_points(tmp_path):
+    """The monitor's DiagnosticArray carries the point, the prediction with its interval and the margin (WARN once
+    the margin is below the required one); the Rerun logger draws them (strict mode: a bad call raises)."""
+    import rerun as rr
+
+    from panel_rig.ros.flutter_monitor import monitor_msg, parse_monitor
+    from panel_rig.viz.logger import RerunLogger
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=2.0, margin=0.1, min_damping=0.0)
+    pts = [_point(u) for u in (5.0, 6.0, 7.0, 8.0, 9.2)]
+    d = decide(pts, s)
+    msg = monitor_msg(123, pts[-1], d, 0.1)
+    v = parse_monitor(msg)
+    assert v["airspeed_mps"] == 9.2 and v["damping_ci_low"] < v["damping_ratio"] < v["damping_ci_high"]
+    assert v["predicted_flutter_speed_mps"] == pytest.approx(UF, rel=0.02)
+    assert v["margin"] == pytest.approx(1 - 9.2 / v["predicted_flutter_speed_mps"])
+    assert msg.status[0].level == b"\x01"  # WARN: inside the margin
+    was = rr.strict_mode()
+    rr.set_strict_mode(True)
+    try:
+        log = RerunLogger(3, mode="save", target=str(tmp_path / "m.rrd"))
+        for k in range(1, len(pts) + 1):
+            log.log_flutter_point(10.0 * k, pts[:k], decide(pts[:k], s), 0.1)
+        log.close()
+    finally:
+        rr.set_strict_mode(was)
+    assert (tmp_path / "m.rrd").stat().st_size > 0

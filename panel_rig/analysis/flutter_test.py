@@ -175,6 +175,21 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
     return Decision(float(nxt), reason, trend, zw, pred)
 
 
+def trend_curve(points: Sequence[TestPoint], decision: Decision | None, n: int = 50
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The damping-trend extrapolation as (airspeeds, damping ratios), from the first point to the predicted U_f
+    (or 10 % past the last point if it does not cross); None before three identified points."""
+    fl = [p for p in points if p.flutter is not None]
+    if len(fl) < 3 or decision is None or decision.trend is None:
+        return None
+    u = np.array([p.airspeed_mps for p in fl])
+    z = np.array([p.flutter.damping_ratio for p in fl])
+    c = np.polyfit(u**2, z, 2)
+    end = decision.trend.speed_mps if np.isfinite(decision.trend.speed_mps) else 1.1 * u.max()
+    uu = np.linspace(u.min(), max(u.max(), min(end, 1.5 * u.max())), n)
+    return uu, np.polyval(c, uu**2)
+
+
 def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[float, float]]]:
     """Per airspeed: the identification bands around the model's first mode and flutter mode (pre-test V-g)."""
     from panel_rig.analysis.vg import vg_diagram
