@@ -435,10 +435,50 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")), **core,
     }
+    result["flutter_test"] = replay_flutter_test(rec)
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
                        if plots_dir is not None else [])
     result["rerun"] = _write_rerun(rec, Path(rerun_path)) if rerun_path is not None else None
     return result
+
+
+def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
+    """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
+    per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
+    the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
+    bag has no airspeed commands or the model does not flutter."""
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.config import SCHEMA, config_from_flat
+    from panel_rig.model.stepper import Stepper
+
+    cmds = rec.commands.get("airspeed_cmd", [])
+    if not cmds:
+        return None
+    try:
+        cfg = config_from_flat({k: v for k, v in rec.parameters.items() if k in SCHEMA})
+    except ConfigError:
+        cfg = PanelConfig()
+    variant = rec.parameters.get("model.variant", "full")
+    model = Stepper(cfg, variant=variant if variant in VARIANTS else "full").model
+    found = model_flutter_speed(model)
+    if found is None:
+        return None
+    uf, mode = found
+    force = rec.force_npm if np.any(rec.force_npm) else None
+    points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
+                           rec.panel_length_m, force)
+    margin = float(rec.parameters.get("flutter_test.margin", 0.1))
+    out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
+                           "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
+                           "prediction_method": None}
+    if points:
+        d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
+        if d.prediction is not None:
+            out.update(predicted_flutter_speed_mps=d.prediction.speed_mps,
+                       predicted_flutter_speed_ci_mps=list(d.prediction.ci_mps), prediction_method=d.prediction.method,
+                       margin=d.prediction.margin(points[-1].airspeed_mps))
+    return out
 
 
 def _write_rerun(rec: Any, path: Any) -> str:
@@ -480,6 +520,18 @@ def format_table(result: dict[str, Any]) -> str:
     lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
                  f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
                  f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    ft = result.get("flutter_test")
+    if ft and ft["test_points"]:
+        lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")
+        for p in ft["test_points"]:
+            ci = p["damping_ci"]
+            lines.append(f"   U {p['airspeed_mps']:7.3f} m/s  f {num(p['frequency_hz'])} Hz  zeta "
+                         + ("-" if p["damping_ratio"] is None else
+                            f"{p['damping_ratio']:.4f} [{ci[0]:.4f}, {ci[1]:.4f}]") + f"  {p['method']}")
+        ci = ft["predicted_flutter_speed_ci_mps"]
+        lines.append(f"   predicted U_f {num(ft['predicted_flutter_speed_mps'])} m/s"
+                     + ("" if ci is None else f" (95 % {ci[0]:.2f} .. {ci[1]:.2f})")
+                     + f" [{ft['prediction_method']}]; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
     for path in result.get("plots") or []:
         lines.append(f"plot: {path}")
     if result.get("rerun"):

@@ -92,8 +92,11 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
         from panel_rig.recording import BagWriter
 
         writer = BagWriter(Path(bag_dir) / time.strftime("flutter_test_%Y%m%d_%H%M%S"))
-        writer.write_parameters({**(params or {}), "model.variant": variant, "panel.length_m": cfg.panel_length_m,
-                                 "flutter_test.margin": margin})
+        from panel_rig.config import SCHEMA
+
+        # the run's configuration under its parameter keys, so a replay rebuilds the same model
+        flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
+        writer.write_parameters({**flat, **(params or {}), "model.variant": variant, "flutter_test.margin": margin})
         sinks.append(BagSink(writer, len(np.atleast_1d(st.q)), cfg))
     viz = None
     if rerun:

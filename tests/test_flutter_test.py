@@ -82,7 +82,7 @@ def test_default_plan_starts_at_half_the_model_speed():
     assert s.start_mps == 5.0 and s.step_mps == 1.0 and s.margin == 0.1
 
 
-def test_cli_flutter_test_json_with_a_set_and_a_replayable_bag(tmp_path, capsys):
+def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
     """`panel-rig flutter-test --set panel.thickness_m=0.0004 --json` (short dwell to bound the test): the JSON keys
     of the issue, no flutter, airspeeds below the model's U_f, a bag with the measured tip and the monitor."""
     import json
@@ -103,6 +103,18 @@ def test_cli_flutter_test_json_with_a_set_and_a_replayable_bag(tmp_path, capsys)
     assert (tmp_path / "vg.png").stat().st_size > 0
     rec = load_series(out["bag"])
     assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=0.1)
+    # replay: the same identification on the bag gives the same points (the recorded tip resampled on the
+    # recorded stamps), and a prediction
+    from panel_rig.cli import analyze_bag
+
+    ft = analyze_bag(out["bag"])["flutter_test"]
+    assert [p["airspeed_mps"] for p in ft["test_points"]] == pytest.approx(
+        [p["airspeed_mps"] for p in out["test_points"]])
+    for live, again in zip(out["test_points"], ft["test_points"]):
+        lo, hi = live["damping_ci"]
+        assert lo <= again["damping_ratio"] <= hi
+        assert again["frequency_hz"] == pytest.approx(live["frequency_hz"], rel=5e-3)
+    assert ft["predicted_flutter_speed_mps"] is not None
 
 
 def test_monitor_message_and_rerun_drawing_of_synthetic_points(tmp_path):

@@ -253,3 +253,37 @@ def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray
             on_point(pt, d)
         u = d.next_airspeed_mps
     return res
+
+
+#: a plateau counts as fluttered (not subcritical) when the measured tip exceeds this fraction of the panel length
+#: (the turbulence response below U_f is tens of micrometres, an LCO tenths of L)
+FLUTTER_TIP_FRACTION = 0.02
+
+
+def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
+                  bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
+                  force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
+                  ssi: SSISettings = SSISettings()) -> list[TestPoint]:
+    """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
+    next command), resampled to the median sample interval, identified as live (``identify_point``). Only the
+    subcritical ascent is kept: plateaus at U > 0 with at least ``min_dwell_s``, in increasing airspeed, up to the
+    first one whose tip exceeds FLUTTER_TIP_FRACTION x L."""
+    t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
+    if t.size < 16:
+        return []
+    dt = float(np.median(np.diff(t)))
+    cmds = sorted(airspeed_cmds)
+    out: list[TestPoint] = []
+    for k, (tc, u) in enumerate(cmds):
+        t_end = cmds[k + 1][0] if k + 1 < len(cmds) else t[-1]
+        if u <= 0 or t_end - tc - settle_s < min_dwell_s:
+            continue
+        if out and u <= out[-1].airspeed_mps:
+            break
+        grid = np.arange(tc + settle_s, t_end - 0.5 * dt, dt)
+        yy = np.interp(grid, t, y)
+        if np.max(np.abs(yy)) > FLUTTER_TIP_FRACTION * panel_length_m:
+            break
+        ff = None if force_npm is None else np.interp(grid, t, np.asarray(force_npm, float))
+        out.append(identify_point(yy, dt, u, bands(u), ff, ssi))
+    return out

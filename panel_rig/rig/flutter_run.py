@@ -8,6 +8,7 @@ from typing import Callable
 import numpy as np
 
 from panel_rig.analysis.flutter_test import (
+    FLUTTER_TIP_FRACTION,
     Decision,
     FlutterTestResult,
     FlutterTestSettings,
@@ -19,12 +20,9 @@ from panel_rig.config import PanelConfig
 from panel_rig.rig.rig import RUNNING, Rig, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 
-#: a plateau counts as fluttered when the measured tip exceeds this fraction of the panel length (the turbulence
-#: response below U_f is tens of micrometres, the LCO tenths of L) or the rig aborted
-FLUTTER_TIP_FRACTION = 0.02
-
 
 def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
+    """The rig aborted, or the tip exceeded FLUTTER_TIP_FRACTION x L."""
     return bool(aborted or (tip_m.size and np.max(np.abs(tip_m)) > FLUTTER_TIP_FRACTION * panel_length_m))
 
 
