@@ -32,6 +32,7 @@ NOT_RUN_HERE = {
     (".venv/bin/rerun",): "opens a viewer (a display or a browser); checked by hand, screenshot in docs/figures",
     ("colcon",): "needs a ROS workspace; tests/test_packaging.py runs `colcon list` on the package",
     ("panel-rig", "control-demo"): "takes ~1.5 min; tests/test_control_node.py runs the same loop (node + controller)",
+    (".venv/bin/panel-rig", "flutter-test"): "takes ~1 min; tests/test_flutter_test.py runs it with a short dwell and --set",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work
 SERVICES = {"run": "panel_rig up", "operate": None, "control": "controller up"}
