@@ -70,3 +70,68 @@ def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSet
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
     rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
     return run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
+
+
+class FlutterMonitorSink:
+    """Live flutter monitor as a Rig sink (the node adds it with ``flutter_monitor:=true``): collects the measured
+    tip of each airspeed plateau (from an accepted ``airspeed_cmd`` + ``settle_s`` to the next one), and when the
+    plateau ends identifies it, updates the predictors and calls ``publish(time_s, point, decision)``. Plateaus
+    shorter than ``min_dwell_s`` or at U <= 0 are skipped; the identification runs in the caller's thread (a few
+    seconds per point: meant for fast mode)."""
+
+    def __init__(self, cfg: PanelConfig, model, publish: Callable[[float, TestPoint, Decision], None],
+                 margin: float = 0.1, settle_s: float = 5.0, min_dwell_s: float = 20.0) -> None:
+        from panel_rig.analysis.vg import model_flutter_speed
+
+        found = model_flutter_speed(model)
+        self.enabled = found is not None
+        self.uf_model, mode = found if found is not None else (float("nan"), 2)
+        self.bands = bands_from_model(model, mode)
+        self.settings = FlutterTestSettings(start_mps=0.0, step_mps=0.1 * self.uf_model, margin=margin)
+        self.publish, self.settle_s, self.min_dwell_s = publish, settle_s, min_dwell_s
+        self.points: list[TestPoint] = []
+        self._u: float | None = None
+        self._t0 = 0.0
+        self._t: list[np.ndarray] = []
+        self._y: list[np.ndarray] = []
+
+    def on_reading(self, reading) -> None:
+        self._take(np.array([reading.time_s]), np.array([reading.tip_w_m]))
+
+    def on_block(self, block) -> None:
+        self._take(block.time_s, block.tip_w_m)
+
+    def _take(self, t: np.ndarray, y: np.ndarray) -> None:
+        if self._u is None:
+            return
+        keep = t >= self._t0 + self.settle_s
+        if np.any(keep):
+            self._t.append(np.asarray(t)[keep])
+            self._y.append(np.asarray(y)[keep])
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        if name != "airspeed_cmd" or not accepted or not self.enabled:
+            return
+        self.finish(time_s)
+        self._u, self._t0, self._t, self._y = float(value), float(time_s), [], []
+
+    def finish(self, time_s: float) -> None:
+        """Identify the plateau in progress (if long enough) and publish."""
+        if self._u is None or self._u <= 0 or not self._t:
+            return
+        t, y = np.concatenate(self._t), np.concatenate(self._y)
+        self._t, self._y = [], []
+        if t[-1] - t[0] < self.min_dwell_s:
+            return
+        if self.points and self._u <= self.points[-1].airspeed_mps:
+            return  # the monitor follows the ascent only
+        dt = float(np.median(np.diff(t)))
+        grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+        from panel_rig.analysis.flutter_test import decide, identify_point
+
+        pt = identify_point(np.interp(grid, t, y), dt, self._u, self.bands(self._u))
+        self.points.append(pt)
+        self.publish(time_s, pt, decide(self.points, self.settings))
+
+    def close(self) -> None:
+        pass
