@@ -74,7 +74,17 @@ def cmd_flutter(args: argparse.Namespace) -> int:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}
     payload.update(aero=args.aero, rom_modes=kw["rom_modes"], formulation=args.formulation)
-    if args.plot:
+    vg = None
+    if args.vg:
+        from panel_rig.analysis.vg import model_flutter_speed, plot_vg, vg_diagram
+
+        # the stepper's continuous-time model with the ROM (the aero the rig runs), whatever --aero says
+        vg = vg_diagram(model, _range(args.vg, "--vg"), aero="rom", rom_modes=rom_modes)
+        payload["vg"] = vg.as_json()
+        if args.plot:
+            uf = model_flutter_speed(model, aero="rom", rom_modes=rom_modes)
+            payload["plot"] = str(plot_vg(vg, args.plot, uf[0] if uf else None, f"(ROM Ra={rom_modes})"))
+    if args.plot and vg is None:
         from panel_rig.analysis.plots import plot_flutter_roots
 
         speeds = np.linspace(1.0, 20.0, 39)
@@ -90,10 +100,17 @@ def cmd_flutter(args: argparse.Namespace) -> int:
 
     def table() -> str:
         if fp is None:
-            return "no flutter found up to 60 m/s"
-        return (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
-                f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
-                f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+            text = "no flutter found up to 60 m/s"
+        else:
+            text = (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
+                    f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
+                    f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+        if vg is not None:
+            n = vg.poles.shape[1]
+            text += "\n\n U (m/s)" + "".join(f"   f{i + 1} (Hz)  zeta{i + 1}  " for i in range(n)) + "\n" + "\n".join(
+                f"{u:8.2f}" + "".join(f"  {f:9.3f} {z:8.5f}" for f, z in zip(fr, zr))
+                for u, fr, zr in zip(vg.airspeed_mps, vg.frequency_hz, vg.damping_ratio))
+        return text
 
     _emit(args, payload, table)
     return 0
@@ -231,13 +248,13 @@ def cmd_lco(args: argparse.Namespace) -> int:
     return 0
 
 
-def _range(text: str) -> np.ndarray:
+def _range(text: str, option: str = "--airspeeds") -> np.ndarray:
     try:
         a, b, c = (float(x) for x in text.split(":"))
     except ValueError:
-        raise UsageError(f"--airspeeds expects START:STOP:STEP, got {text!r}") from None
+        raise UsageError(f"{option} expects START:STOP:STEP, got {text!r}") from None
     if c <= 0 or b < a:
-        raise UsageError(f"--airspeeds needs STOP >= START and STEP > 0, got {text!r}")
+        raise UsageError(f"{option} needs STOP >= START and STEP > 0, got {text!r}")
     return np.array([_airspeed(u) for u in np.arange(a, b + 0.5 * c, c)])
 
 
@@ -388,6 +405,19 @@ PROGRAMS: dict[str, tuple[Callable[[Sequence[str]], int], str]] = {
 }
 
 
+def cmd_flutter_test(args: argparse.Namespace) -> int:
+    from panel_rig.flutter_cli import format_flutter_test, run_flutter_test
+
+    if not 0 < args.margin < 1:
+        raise UsageError("--margin must be in (0, 1)")
+    cfg = _config(args)
+    out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
+                           params={"set": " ".join(args.set or ()), "params": args.params or ""},
+                           dwell_s=args.dwell)
+    _emit(args, out, lambda: format_flutter_test(out))
+    return 1 if out["fluttered"] else 0
+
+
 def cmd_bag_recover(args: argparse.Namespace) -> int:
     from panel_rig.recording.recover import main_bag_recover
 
@@ -414,10 +444,50 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")), **core,
     }
+    result["flutter_test"] = replay_flutter_test(rec)
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
                        if plots_dir is not None else [])
     result["rerun"] = _write_rerun(rec, Path(rerun_path)) if rerun_path is not None else None
     return result
+
+
+def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
+    """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
+    per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
+    the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
+    bag has no airspeed commands or the model does not flutter."""
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.config import SCHEMA, config_from_flat
+    from panel_rig.model.stepper import Stepper
+
+    cmds = rec.commands.get("airspeed_cmd", [])
+    if not cmds:
+        return None
+    try:
+        cfg = config_from_flat({k: v for k, v in rec.parameters.items() if k in SCHEMA})
+    except ConfigError:
+        cfg = PanelConfig()
+    variant = rec.parameters.get("model.variant", "full")
+    model = Stepper(cfg, variant=variant if variant in VARIANTS else "full").model
+    found = model_flutter_speed(model)
+    if found is None:
+        return None
+    uf, mode = found
+    force = rec.force_npm if np.any(rec.force_npm) else None
+    points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
+                           rec.panel_length_m, force)
+    margin = float(rec.parameters.get("flutter_test.margin", 0.1))
+    out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
+                           "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
+                           "prediction_method": None}
+    if points:
+        d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
+        if d.prediction is not None:
+            out.update(predicted_flutter_speed_mps=d.prediction.speed_mps,
+                       predicted_flutter_speed_ci_mps=list(d.prediction.ci_mps), prediction_method=d.prediction.method,
+                       margin=d.prediction.margin(points[-1].airspeed_mps))
+    return out
 
 
 def _write_rerun(rec: Any, path: Any) -> str:
@@ -459,6 +529,18 @@ def format_table(result: dict[str, Any]) -> str:
     lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
                  f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
                  f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    ft = result.get("flutter_test")
+    if ft and ft["test_points"]:
+        lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")
+        for p in ft["test_points"]:
+            ci = p["damping_ci"]
+            lines.append(f"   U {p['airspeed_mps']:7.3f} m/s  f {num(p['frequency_hz'])} Hz  zeta "
+                         + ("-" if p["damping_ratio"] is None else
+                            f"{p['damping_ratio']:.4f} [{ci[0]:.4f}, {ci[1]:.4f}]") + f"  {p['method']}")
+        ci = ft["predicted_flutter_speed_ci_mps"]
+        lines.append(f"   predicted U_f {num(ft['predicted_flutter_speed_mps'])} m/s"
+                     + ("" if ci is None else f" (95 % {ci[0]:.2f} .. {ci[1]:.2f})")
+                     + f" [{ft['prediction_method']}]; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
     for path in result.get("plots") or []:
         lines.append(f"plot: {path}")
     if result.get("rerun"):
@@ -534,7 +616,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",
                    help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus); with "
-                   "--control: open- vs closed-loop damping")
+                   "--control: open- vs closed-loop damping; with --vg the V-g and V-f diagram instead")
+    p.add_argument("--vg", metavar="LO:HI:STEP",
+                   help="V-g/V-f: each structural mode's frequency and damping ratio per airspeed (the stepper's "
+                        "continuous-time model, ROM aero; modes tracked by continuity); JSON key vg")
     p.add_argument("--control", action="store_true",
                    help="closed loop with the reference controller, the control actuator and the loop delay")
     p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
@@ -625,6 +710,18 @@ def build_parser() -> argparse.ArgumentParser:
     r = bag.add_parser("recover", help="rebuild a readable bag from a killed or corrupt recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)
+
+    p = sub.add_parser("flutter-test", help="automatic flutter clearance: step up, identify, predict, stop short")
+    _common(p)
+    p.add_argument("--variant", choices=tuple(VARIANTS), default="full")
+    p.add_argument("--start-mps", type=float, metavar="U0", help="first test point (default: half the model's U_f)")
+    p.add_argument("--margin", type=float, default=0.1, metavar="M", help="required speed margin (default 0.1)")
+    p.add_argument("--dwell", type=float, metavar="S", help="seconds of response per test point (default 200)")
+    p.add_argument("--bag-dir", default="bags", help="directory for the recording (default bags)")
+    p.add_argument("--plot", default="out/flutter_test/vg.png", metavar="FILE.png",
+                   help="V-g plot with the extrapolation (default out/flutter_test/vg.png)")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="also write a Rerun recording (readings and the monitor)")
+    p.set_defaults(func=cmd_flutter_test)
 
     p = sub.add_parser("analyze", help="airspeed plateaus, LCO and flutter onset from a recorded bag")
     add_analyze_arguments(p)

@@ -34,6 +34,7 @@ NOT_RUN_HERE = {
     ("panel-rig", "study", "--scheduler"): "needs a running Dask scheduler and workers; tests/test_studies.py "
                                            "starts them on 127.0.0.1 and runs the same command against them",
     ("panel-rig", "control-demo"): "takes ~1.5 min; tests/test_control_node.py runs the same loop (node + controller)",
+    (".venv/bin/panel-rig", "flutter-test"): "takes ~1 min; tests/test_flutter_test.py runs it with a short dwell and --set",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work
 SERVICES = {"run": "panel_rig up", "operate": None, "control": "controller up"}

@@ -292,7 +292,16 @@ class RigNode(Node):
 
     # ---- sinks -----------------------------------------------------------------------------------
     def _open_sinks(self, p: dict[str, Any]) -> None:
-        """Recording (``record``/``bag_dir``) and Rerun (``rerun``) if those packages are present."""
+        """Recording (``record``/``bag_dir``) and Rerun (``rerun``) if those packages are present; the flutter
+        monitor (``flutter_monitor``)."""
+        self._flutter_monitor: Any = None
+        if p["flutter_monitor"] and hasattr(self.rig.stepper, "model"):
+            from panel_rig.rig.flutter_run import FlutterMonitorSink
+            from panel_rig.ros.flutter_monitor import TOPIC
+
+            self.pub_flutter = self.create_publisher(DiagnosticArray, TOPIC, COMMAND_QOS)
+            self._flutter_monitor = FlutterMonitorSink(self.cfg, self.rig.stepper.model, self._publish_flutter)
+            self.rig.sinks.append(self._flutter_monitor)
         if p["record"]:
             try:
                 from panel_rig.recording import BagWriter
@@ -316,6 +325,17 @@ class RigNode(Node):
                 self.get_logger().info(f"rerun sink: {p['rerun']}")
             except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
                 self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
+
+    def _publish_flutter(self, time_s: float, point: Any, decision: Any) -> None:
+        """One flutter-monitor message per identified plateau (to the topic, the bag and the viewer)."""
+        from panel_rig.ros.flutter_monitor import monitor_msg
+
+        stamp = self._stamp_ns(time_s)
+        self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, self._flutter_monitor.settings.margin),
+                      stamp, qos="reliable")
+        if self._rerun is not None:
+            self._rerun.log_flutter_point(time_s, self._flutter_monitor.points, decision,
+                                          self._flutter_monitor.settings.margin)
 
     def _stamp_ns(self, time_s: float) -> int:
         """The stamp of simulated time ``time_s``: itself in fast mode (with /clock), the ROS clock in real time."""

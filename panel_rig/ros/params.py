@@ -113,6 +113,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
     "record": NodeParam(False, False, _bool, "record a rosbag2 MCAP of every topic and command"),
     "bag_dir": NodeParam("bags", False, _string, "directory for recordings"),
     "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
+    "flutter_monitor": NodeParam(False, False, _bool, "identify each airspeed plateau of the measured tip and "
+                                 "publish flutter_monitor (DiagnosticArray: damping, predicted U_f, margin)"),
 }
 
 #: node parameter -> field of :class:`panel_rig.rig.safety.SafetyLimits`

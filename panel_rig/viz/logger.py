@@ -23,6 +23,10 @@ FORCE = "shaker/force_npm"
 SHAPE = "panel/shape"
 CONTROL_CMD = "control/command_npm"
 CONTROL_AGE = "control/latency_ms"
+# the flutter monitor: predicted U_f (and its interval) and the margin vs time; damping (x 1000) vs airspeed
+FLUTTER_UF = "flutter/predicted_uf_mps"
+FLUTTER_MARGIN = "flutter/margin"
+FLUTTER_VG = "flutter_vg"
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
 # How a time-series view draws the samples that share a pixel when zoomed out. Rerun's default is the
 # average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
@@ -51,6 +55,8 @@ def blueprint(n_modes: int) -> Any:
         ),
         rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
         rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)"),
+        rrb.TimeSeriesView(origin="/", contents=[f"{FLUTTER_UF}/**", FLUTTER_MARGIN],
+                           name="Flutter monitor: predicted U_f (m/s) and margin"),
     )
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
     eye = rrb.EyeControls3D(
@@ -58,7 +64,9 @@ def blueprint(n_modes: int) -> Any:
         eye_up=[0.0, 0.0, 1.0],
     )
     shape = rrb.Spatial3DView(origin="panel", name="Panel shape (x chord, z deflection)", eye_controls=eye)
-    return rrb.Blueprint(rrb.Horizontal(series, shape, column_shares=[3, 2]), collapse_panels=True)
+    vg = rrb.Spatial2DView(origin=FLUTTER_VG, name="Flutter mode: damping ratio x 1000 vs airspeed (m/s)")
+    return rrb.Blueprint(rrb.Horizontal(series, rrb.Vertical(shape, vg), column_shares=[3, 2]),
+                         collapse_panels=True)
 
 
 class RerunLogger:
@@ -218,6 +226,41 @@ class RerunLogger:
             return
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
+
+    def log_flutter_point(self, time_s: float, points: Any, decision: Any, required_margin: float) -> None:
+        """The flutter monitor after a test point: predicted U_f with its interval and the margin on the time
+        line; the identified damping (x 1000, 95 % bars) of every point so far vs airspeed with the damping-trend
+        extrapolation and the predicted U_f as a vertical line (2-D view ``flutter_vg``)."""
+        if self._rec is None:
+            return
+        from panel_rig.analysis.flutter_test import trend_curve
+
+        rr, rec = self._rr, self._rec
+        rec.set_time(TIMELINE, duration=float(time_s))
+        pred = decision.prediction
+        if pred is not None and np.isfinite(pred.speed_mps):
+            rec.log(f"{FLUTTER_UF}/estimate", rr.Scalars(float(pred.speed_mps)))
+            for name, v in zip(("ci_low", "ci_high"), pred.ci_mps):
+                if np.isfinite(v):
+                    rec.log(f"{FLUTTER_UF}/{name}", rr.Scalars(float(v)))
+            rec.log(FLUTTER_MARGIN, rr.Scalars(float(pred.margin(points[-1].airspeed_mps))))
+        rec.log(f"{FLUTTER_UF}/required_margin", rr.Scalars(float(required_margin)))
+        fl = [p for p in points if p.flutter is not None]
+        if fl:
+            xy = [[p.airspeed_mps, 1e3 * p.flutter.damping_ratio] for p in fl]
+            rec.log(f"{FLUTTER_VG}/identified", rr.Points2D(xy, radii=0.05, colors=[31, 119, 180]))
+            bars = [[[p.airspeed_mps, 1e3 * lo], [p.airspeed_mps, 1e3 * hi]]
+                    for p in fl for lo, hi in [p.flutter.damping_ci()]]
+            rec.log(f"{FLUTTER_VG}/interval", rr.LineStrips2D(bars, colors=[31, 119, 180]))
+        curve = trend_curve(points, decision)
+        if curve is not None:
+            rec.log(f"{FLUTTER_VG}/trend", rr.LineStrips2D([np.column_stack([curve[0], 1e3 * curve[1]])],
+                                                           colors=[255, 127, 14]))
+        if pred is not None and np.isfinite(pred.speed_mps):
+            rec.log(f"{FLUTTER_VG}/predicted_uf", rr.LineStrips2D([[[pred.speed_mps, -2.0], [pred.speed_mps, 10.0]]],
+                                                                  colors=[214, 39, 40]))
+        rec.log(f"{FLUTTER_VG}/zero", rr.LineStrips2D([[[0.0, 0.0], [1.5 * points[-1].airspeed_mps, 0.0]]],
+                                                       colors=[0, 0, 0]))
 
     def close(self) -> None:
         """Flush everything; the logger is disabled afterwards. Idempotent."""

@@ -1,0 +1,289 @@
+"""The flutter-test procedure as a pure core: test points in, identification, prediction and the next airspeed out.
+
+No ROS, no files, no clock. A driver (the ``panel-rig flutter-test`` command over the live node, a unit test over
+the Rig, a bag replay) feeds it one airspeed plateau at a time: the measured tip samples of the dwell (the run-in
+after the airspeed change already dropped), their sample interval, the plateau's airspeed, and the shaker force
+if there was one. For each plateau the core
+
+1. identifies frequency and damping (with a 95 % interval) of the first mode and of the flutter mode: output-only
+   SSI-cov (``identification.identify_ssi``) on a turbulence response, free decay (``identify_free_decay``) on
+   the samples after a shaker tap when the force shows one;
+2. updates both boundary predictors from the subcritical points so far (``flutter_margin``): the damping trend
+   of the flutter mode (quadratic in dynamic pressure, >= 3 points) and the Zimmerman–Weissenburger margin of
+   the two modes (linear in dynamic pressure, >= 2 points), each with its bootstrap interval;
+3. decides: stop when the identified flutter-mode damping is below ``min_damping``, or the predicted speed margin
+   1 - U/U_f is below ``margin``; otherwise step up by ``step_mps``, but never to more than (1 - margin) x the
+   predicted U_f (the lower of the two predictors, i.e. the conservative one), and stop when that cap leaves
+   less than ``min_step_mps`` to go.
+
+Frequency bands. The identification needs a band per mode; they come from the pre-test model analysis (the
+model's V-g at the plateau's airspeed, ``bands_from_model``), as a real test team's test plan gives them. Only the
+bands come from the model: frequencies and damping are identified from the measured tip alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from panel_rig.analysis.flutter_margin import (
+    BoundaryPrediction,
+    predict_by_damping_trend,
+    predict_by_flutter_margin,
+)
+from panel_rig.analysis.identification import (
+    ModalEstimate,
+    SSISettings,
+    identify_free_decay,
+    identify_ssi,
+)
+
+#: bands around the model's frequency of the first (heavily damped) mode and of the flutter mode
+FIRST_BAND = (0.6, 1.5)
+FLUTTER_BAND = (0.85, 1.15)
+#: SSI rate for the first mode (heavily damped: its covariance dies fast, see identify_ssi)
+FIRST_MODE_RATE_FACTOR = 50.0
+
+
+@dataclass(frozen=True)
+class FlutterTestSettings:
+    """The test plan. ``start_mps`` and ``step_mps``: the first airspeed and the largest step; ``dwell_s`` of
+    measured response per point after ``settle_s`` of run-in; ``margin``: the required speed margin M."""
+
+    start_mps: float
+    step_mps: float
+    margin: float = 0.1
+    #: stop when the flutter mode's identified damping ratio falls below this
+    min_damping: float = 0.002
+    min_step_mps: float = 0.05
+    dwell_s: float = 200.0
+    settle_s: float = 5.0
+    max_points: int = 12
+    n_boot: int = 400
+    ssi: SSISettings = SSISettings()
+
+
+@dataclass(frozen=True)
+class TestPoint:
+    """One plateau: its airspeed and the identified first and flutter modes (None: not identified)."""
+
+    __test__ = False  # not a pytest class
+
+    airspeed_mps: float
+    first: ModalEstimate | None
+    flutter: ModalEstimate | None
+    method: str
+
+    def as_dict(self) -> dict:
+        e = self.flutter
+        return {"airspeed_mps": self.airspeed_mps,
+                "frequency_hz": None if e is None else e.frequency_hz,
+                "damping_ratio": None if e is None else e.damping_ratio,
+                "damping_ci": None if e is None else list(e.damping_ci()),
+                "frequency_ci_hz": None if e is None else list(e.frequency_ci_hz()),
+                "first_mode": None if self.first is None else self.first.as_dict(),
+                "method": self.method}
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the procedure does next: ``next_airspeed_mps`` (None: stop) and why."""
+
+    next_airspeed_mps: float | None
+    reason: str
+    trend: BoundaryPrediction | None
+    zw: BoundaryPrediction | None
+    prediction: BoundaryPrediction | None  # the one the decision used (the lower speed)
+
+    @property
+    def stop(self) -> bool:
+        return self.next_airspeed_mps is None
+
+    def margin(self, airspeed_mps: float) -> float:
+        return self.prediction.margin(airspeed_mps) if self.prediction is not None else 1.0
+
+
+def tap_start(force_npm: np.ndarray | None, threshold: float = 1e-9) -> int | None:
+    """Index of the first sample after the last non-zero shaker force (the free decay's start), None if no tap."""
+    if force_npm is None:
+        return None
+    on = np.flatnonzero(np.abs(np.asarray(force_npm, float)) > threshold)
+    return None if on.size == 0 else int(on[-1]) + 1
+
+
+def identify_point(tip_m: np.ndarray, dt_s: float, airspeed_mps: float, bands: Sequence[tuple[float, float]],
+                   force_npm: np.ndarray | None = None, ssi: SSISettings = SSISettings(),
+                   min_free_decay_s: float = 2.0) -> TestPoint:
+    """Identify the first mode (bands[0]) and the flutter mode (bands[1]) of one plateau: free decay after a tap
+    when the force shows one with at least ``min_free_decay_s`` after it, SSI-cov on the whole record otherwise."""
+    tip = np.asarray(tip_m, float)
+    k = tap_start(force_npm)
+    if k is not None and (tip.size - k) * dt_s >= min_free_decay_s:
+        first, flut = identify_free_decay(tip[k:], dt_s, bands)
+        return TestPoint(float(airspeed_mps), first, flut, "free-decay")
+    first = identify_ssi(tip, dt_s, [bands[0]], ssi, max_rate_hz=FIRST_MODE_RATE_FACTOR * np.mean(bands[0]))[0]
+    flut = identify_ssi(tip, dt_s, [bands[1]], ssi)[0]
+    return TestPoint(float(airspeed_mps), first, flut, "ssi-cov")
+
+
+def predict(points: Sequence[TestPoint], n_boot: int = 400, seed: int = 0
+            ) -> tuple[BoundaryPrediction | None, BoundaryPrediction | None]:
+    """Damping-trend (>= 3 points with the flutter mode) and ZW (>= 2 points with both modes) predictions."""
+    fl = [p for p in points if p.flutter is not None]
+    with np.errstate(invalid="ignore"):  # percentiles of bootstrap draws with no crossing (inf)
+        return _predict(fl, n_boot, seed)
+
+
+def _predict(fl: list[TestPoint], n_boot: int, seed: int
+             ) -> tuple[BoundaryPrediction | None, BoundaryPrediction | None]:
+    trend = zw = None
+    if len(fl) >= 3:
+        trend = predict_by_damping_trend([p.airspeed_mps for p in fl], [p.flutter for p in fl], n_boot=n_boot,
+                                         rng=np.random.default_rng(seed))
+    both = [p for p in fl if p.first is not None]
+    if len(both) >= 2:
+        zw = predict_by_flutter_margin([p.airspeed_mps for p in both], [p.first for p in both],
+                                       [p.flutter for p in both], n_boot=n_boot, rng=np.random.default_rng(seed))
+    return trend, zw
+
+
+def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decision:
+    """The next airspeed after the points so far (the last one is the current plateau)."""
+    trend, zw = predict(points, settings.n_boot)
+    finite = [p for p in (trend, zw) if p is not None and np.isfinite(p.speed_mps)]
+    pred = min(finite, key=lambda p: p.speed_mps) if finite else None
+    u = points[-1].airspeed_mps
+    last = points[-1].flutter
+    if last is not None and last.damping_ratio < settings.min_damping:
+        return Decision(None, f"flutter-mode damping {last.damping_ratio:.4f} < {settings.min_damping}", trend, zw,
+                        pred)
+    if pred is not None and pred.margin(u) < settings.margin:
+        return Decision(None, f"predicted margin {pred.margin(u):.3f} < {settings.margin}", trend, zw, pred)
+    if len(points) >= settings.max_points:
+        return Decision(None, f"{settings.max_points} test points done", trend, zw, pred)
+    nxt = u + settings.step_mps
+    reason = "step"
+    if pred is not None:
+        cap = (1.0 - settings.margin) * pred.speed_mps
+        if nxt > cap:
+            nxt, reason = cap, f"capped at (1 - M) x predicted U_f = {cap:.3f} m/s"
+    if nxt - u < settings.min_step_mps:
+        return Decision(None, f"next point within {settings.min_step_mps} m/s of the cap: cleared to "
+                              f"{u:.3f} m/s", trend, zw, pred)
+    return Decision(float(nxt), reason, trend, zw, pred)
+
+
+def trend_curve(points: Sequence[TestPoint], decision: Decision | None, n: int = 50
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The damping-trend extrapolation as (airspeeds, damping ratios), from the first point to the predicted U_f
+    (or 10 % past the last point if it does not cross); None before three identified points."""
+    fl = [p for p in points if p.flutter is not None]
+    if len(fl) < 3 or decision is None or decision.trend is None:
+        return None
+    u = np.array([p.airspeed_mps for p in fl])
+    z = np.array([p.flutter.damping_ratio for p in fl])
+    c = np.polyfit(u**2, z, 2)
+    end = decision.trend.speed_mps if np.isfinite(decision.trend.speed_mps) else 1.1 * u.max()
+    uu = np.linspace(u.min(), max(u.max(), min(end, 1.5 * u.max())), n)
+    return uu, np.polyval(c, uu**2)
+
+
+def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[float, float]]]:
+    """Per airspeed: the identification bands around the model's first mode and flutter mode (pre-test V-g)."""
+    from panel_rig.analysis.vg import vg_diagram
+
+    def bands(airspeed_mps: float) -> list[tuple[float, float]]:
+        f = vg_diagram(model, np.array([airspeed_mps])).frequency_hz[0]
+        f1, ff = f[0], f[flutter_mode - 1]
+        return [(FIRST_BAND[0] * f1, FIRST_BAND[1] * f1), (FLUTTER_BAND[0] * ff, FLUTTER_BAND[1] * ff)]
+
+    return bands
+
+
+@dataclass
+class FlutterTestResult:
+    """The whole test: the points, the last decision, the highest airspeed reached, whether it fluttered."""
+
+    points: list[TestPoint] = field(default_factory=list)
+    decisions: list[Decision] = field(default_factory=list)
+    max_airspeed_mps: float = 0.0
+    fluttered: bool = False
+    bag: str | None = None
+
+    @property
+    def final(self) -> Decision | None:
+        return self.decisions[-1] if self.decisions else None
+
+    def as_dict(self) -> dict:
+        d = self.final
+        pred = d.prediction if d is not None else None
+        out = {"test_points": [p.as_dict() for p in self.points],
+               "predicted_flutter_speed_mps": None if pred is None else pred.speed_mps,
+               "predicted_flutter_speed_ci_mps": None if pred is None else list(pred.ci_mps),
+               "prediction_method": None if pred is None else pred.method,
+               "max_airspeed_mps": self.max_airspeed_mps,
+               "fluttered": bool(self.fluttered),
+               "stop_reason": None if d is None else d.reason,
+               "bag": self.bag}
+        for name, p in (("damping_trend", d.trend if d else None), ("zimmerman_weissenburger", d.zw if d else None)):
+            out[name] = None if p is None else p.as_dict()
+        return out
+
+
+def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray | None, bool]],
+                  bands: Callable[[float], list[tuple[float, float]]], settings: FlutterTestSettings,
+                  on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
+    """Drive a test: ``measure(U)`` sets the airspeed, dwells and returns (measured tip, dt, shaker force or None,
+    fluttered); identification and decision after each point; stops on the decision or on flutter."""
+    res = FlutterTestResult()
+    u: float | None = settings.start_mps
+    while u is not None:
+        tip, dt, force, fluttered = measure(u)
+        res.max_airspeed_mps = max(res.max_airspeed_mps, u)
+        if fluttered:
+            res.fluttered = True
+            break
+        pt = identify_point(tip, dt, u, bands(u), force, settings.ssi)
+        res.points.append(pt)
+        d = decide(res.points, settings)
+        res.decisions.append(d)
+        if on_point is not None:
+            on_point(pt, d)
+        u = d.next_airspeed_mps
+    return res
+
+
+#: a plateau counts as fluttered (not subcritical) when the measured tip exceeds this fraction of the panel length
+#: (the turbulence response below U_f is tens of micrometres, an LCO tenths of L)
+FLUTTER_TIP_FRACTION = 0.02
+
+
+def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
+                  bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
+                  force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
+                  ssi: SSISettings = SSISettings()) -> list[TestPoint]:
+    """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
+    next command), resampled to the median sample interval, identified as live (``identify_point``). Only the
+    subcritical ascent is kept: plateaus at U > 0 with at least ``min_dwell_s``, in increasing airspeed, up to the
+    first one whose tip exceeds FLUTTER_TIP_FRACTION x L."""
+    t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
+    if t.size < 16:
+        return []
+    dt = float(np.median(np.diff(t)))
+    cmds = sorted(airspeed_cmds)
+    out: list[TestPoint] = []
+    for k, (tc, u) in enumerate(cmds):
+        t_end = cmds[k + 1][0] if k + 1 < len(cmds) else t[-1]
+        if u <= 0 or t_end - tc - settle_s < min_dwell_s:
+            continue
+        if out and u <= out[-1].airspeed_mps:
+            break
+        grid = np.arange(tc + settle_s, t_end - 0.5 * dt, dt)
+        yy = np.interp(grid, t, y)
+        if np.max(np.abs(yy)) > FLUTTER_TIP_FRACTION * panel_length_m:
+            break
+        ff = None if force_npm is None else np.interp(grid, t, np.asarray(force_npm, float))
+        out.append(identify_point(yy, dt, u, bands(u), ff, ssi))
+    return out

@@ -1,0 +1,210 @@
+"""``panel-rig flutter-test``: the automatic flutter-clearance procedure on the rig with turbulence on.
+
+The node-equivalent Rig (the same Stepper, turbulence, sensor and safety the rig node builds, marched in blocks as
+the node's fast mode does) runs in this process: driving the live node over topics was measured at a real-time
+factor of ~6 with ~40 % of the best-effort 500 Hz tip samples lost by a Python subscriber on this 2-core machine
+(docs/validation.md), i.e. > 3 min for a test and an irregular record; in-process the whole test takes < 1 min.
+What the node would publish is recorded to a rosbag2 MCAP with the node's topic names and encoding
+(``/rig/tip_displacement`` = the sensor's reading, ``/rig/tip_displacement/truth``, ``/rig/airspeed``,
+``/rig/airspeed_cmd``) plus the monitor (``/rig/flutter_monitor``, one
+``diagnostic_msgs/DiagnosticArray`` per test point), so ``panel-rig analyze BAG`` replays it.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+NAMESPACE = "/rig"
+
+
+class BagSink:
+    """Rig sink writing the node's reading topics and the airspeed commands to a BagWriter."""
+
+    def __init__(self, writer: Any, n_modes: int, cfg: Any) -> None:
+        from panel_rig.ros import messages
+
+        self.writer = writer
+        self.msgs = messages.ReadingMessages([f"q{i + 1}" for i in range(n_modes)],
+                                             cfg.airfoil_length_m + cfg.panel_length_m, cfg.panel_length_m)
+        self.last_ns = 0
+
+    def on_reading(self, reading: Any) -> None:
+        from panel_rig.rig.reading import ReadingBlock
+
+        self.on_block(ReadingBlock.of([reading]))
+
+    def on_block(self, block: Any) -> None:
+        m = self.msgs
+        # modal_states left out: the test needs only the measured tip (and the truth to score it); it would
+        # double the bag (~0.25 MB per simulated second with it)
+        names = ("tip_displacement", None, "airspeed", "tip_displacement/truth")
+        objs = (m.tip, m.modal, m.airspeed, m.truth)
+        for stamp_ns, *encoded in m.encode(block):
+            for name, msg, data in zip(names, objs, encoded):
+                if name is not None:
+                    self.writer.write(f"{NAMESPACE}/{name}", msg, stamp_ns, data=data)
+            self.last_ns = stamp_ns
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        if name != "airspeed_cmd" or not accepted:
+            return
+        from std_msgs.msg import Float64
+
+        from panel_rig.ros import messages
+
+        self.writer.write(f"{NAMESPACE}/airspeed_cmd", Float64(data=float(value)), messages.stamp_ns(time_s),
+                          qos="reliable")
+
+    def close(self) -> None:
+        pass
+
+
+def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
+                     bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
+                     params: dict[str, Any] | None = None, dwell_s: float | None = None) -> dict[str, Any]:
+    """Run the procedure; returns the JSON payload (see the CLI)."""
+    from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+    from panel_rig.rig.flutter_run import default_plan, rig_measure
+    from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
+    from panel_rig.rig.safety import SafetyLimits
+    from panel_rig.ros import messages
+    from panel_rig.ros.flutter_monitor import TOPIC, monitor_msg
+
+    t0 = time.monotonic()
+    st = Stepper(cfg, variant=variant)
+    found = model_flutter_speed(st.model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
+    uf, mode = found
+    changes = {} if dwell_s is None else {"dwell_s": dwell_s}
+    settings = default_plan(uf, margin, start_mps, **changes)
+    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
+                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
+    sinks: list[Any] = []
+    writer = None
+    if bag_dir is not None:
+        from panel_rig.recording import BagWriter
+
+        writer = BagWriter(Path(bag_dir) / time.strftime("flutter_test_%Y%m%d_%H%M%S"))
+        from panel_rig.config import SCHEMA
+
+        # the run's configuration under its parameter keys, so a replay rebuilds the same model
+        flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
+        writer.write_parameters({**flat, **(params or {}), "model.variant": variant, "flutter_test.margin": margin})
+        sinks.append(BagSink(writer, len(np.atleast_1d(st.q)), cfg))
+    viz = None
+    if rerun:
+        from panel_rig.viz import RerunLogger
+
+        viz = RerunLogger(len(np.atleast_1d(st.q)), mode="save", target=rerun, recording_name="flutter_test")
+        sinks.append(viz)
+    rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), sinks=sinks,
+              **tunnel_extras(cfg, st))
+    history: list[tuple[float, Any, Any]] = []
+
+    def on_point(point: Any, decision: Any) -> None:
+        history.append((rig.time_s, point, decision))
+        if writer is not None:
+            writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
+                         messages.stamp_ns(rig.time_s), qos="reliable")
+        if viz is not None:
+            viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
+
+    try:
+        res = run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point)
+    finally:
+        rig.command_airspeed(0.0)
+        for s in sinks:
+            if hasattr(s, "flush_blocks"):
+                s.flush_blocks()
+        if writer is not None:
+            writer.close()
+        if viz is not None:
+            viz.close()
+    res.bag = str(writer.bag_dir) if writer is not None else None
+    out = res.as_dict()
+    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin,
+               dwell_s=settings.dwell_s, simulated_s=rig.time_s, wall_s=time.monotonic() - t0,
+               monitor_times_s=[h[0] for h in history])
+    if plot is not None:
+        out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
+    return out
+
+
+def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Path) -> Path:
+    """V-g of the model (frequency and damping of every mode) with the identified points (95 % bars) and the
+    damping-trend extrapolation to the predicted U_f."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from panel_rig.analysis.flutter_test import trend_curve
+    from panel_rig.analysis.vg import vg_diagram
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pts = [p for p in res.points if p.flutter is not None]
+    u_hi = max([uf * 1.1] + [p.airspeed_mps for p in res.points])
+    grid = np.linspace(0.3 * uf, u_hi, 60)
+    vg = vg_diagram(model, grid)
+    fig, (ax_z, ax_f) = plt.subplots(2, 1, figsize=(7, 7), sharex=True)
+    for k in range(vg.poles.shape[1]):
+        ls = "-" if k == mode - 1 else ":"
+        ax_z.plot(grid, vg.damping_ratio[:, k], ls, color="0.5", lw=1, label="model V-g" if k == 0 else None)
+        ax_f.plot(grid, vg.frequency_hz[:, k], ls, color="0.5", lw=1)
+    if pts:
+        u = np.array([p.airspeed_mps for p in pts])
+        z = np.array([p.flutter.damping_ratio for p in pts])
+        zci = np.array([p.flutter.damping_ci() for p in pts])
+        ax_z.errorbar(u, z, yerr=[z - zci[:, 0], zci[:, 1] - z], fmt="o", color="C0", capsize=3,
+                      label="identified (95 %)")
+        f = np.array([p.flutter.frequency_hz for p in pts])
+        ax_f.plot(u, f, "o", color="C0")
+        d = res.final
+        curve = trend_curve(res.points, d)
+        if curve is not None:
+            ax_z.plot(*curve, "--", color="C1", label="damping trend (quadratic in q)")
+        if d is not None and d.prediction is not None and np.isfinite(d.prediction.speed_mps):
+            lo, hi = d.prediction.ci_mps
+            ax_z.axvspan(lo, min(hi, u_hi), color="C3", alpha=0.15)
+            ax_z.axvline(d.prediction.speed_mps, color="C3",
+                         label=f"predicted U_f {d.prediction.speed_mps:.2f} m/s ({d.prediction.method})")
+    ax_z.axvline(uf, color="k", lw=0.8, label=f"model linear U_f {uf:.2f} m/s")
+    ax_z.axhline(0, color="k", lw=0.5)
+    ax_z.set_ylim(-0.005, 0.03)
+    ax_z.set_ylabel("damping ratio")
+    ax_z.legend(fontsize=7)
+    ax_f.set_ylabel("frequency (Hz)")
+    ax_f.set_xlabel("airspeed (m/s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def format_flutter_test(out: dict[str, Any]) -> str:
+    def num(x: Any, fmt: str) -> str:
+        return "-" if x is None else format(x, fmt)
+
+    lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method"]
+    for k, p in enumerate(out["test_points"], 1):
+        ci = p["damping_ci"]
+        ci_s = "-" if ci is None else f"[{ci[0]:.4f}, {ci[1]:.4f}]"
+        lines.append(f"{k:>2} {p['airspeed_mps']:>7.3f} {num(p['frequency_hz'], '7.3f')} "
+                     f"{num(p['damping_ratio'], '8.4f')} {ci_s:>19} {p['method']}")
+    ci = out["predicted_flutter_speed_ci_mps"]
+    lines.append(f"predicted U_f: {num(out['predicted_flutter_speed_mps'], '.3f')} m/s"
+                 + ("" if ci is None else f" (95 % {ci[0]:.3f} .. {ci[1]:.3f})")
+                 + f" [{out['prediction_method']}]; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
+    lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; fluttered: {out['fluttered']}; "
+                 f"stop: {out['stop_reason']}")
+    lines.append(f"bag: {out['bag']}; plot: {out.get('plot')}; {out['simulated_s']:.0f} s simulated in "
+                 f"{out['wall_s']:.1f} s wall")
+    return "\n".join(lines)

@@ -1,0 +1,137 @@
+"""The flutter-test procedure (``panel_rig.analysis.flutter_test``) on an in-process Rig: no ROS, the same
+turbulence, sensor and safety as the node's rig. Used by the unit tests and as the node-equivalent driver."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from panel_rig.analysis.flutter_test import (
+    FLUTTER_TIP_FRACTION,
+    Decision,
+    FlutterTestResult,
+    FlutterTestSettings,
+    TestPoint,
+    bands_from_model,
+    run_procedure,
+)
+from panel_rig.config import PanelConfig
+from panel_rig.rig.rig import RUNNING, Rig, TunnelSettings, tunnel_extras
+from panel_rig.rig.safety import SafetyLimits
+
+
+def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
+    """The rig aborted, or the tip exceeded FLUTTER_TIP_FRACTION x L."""
+    return bool(aborted or (tip_m.size and np.max(np.abs(tip_m)) > FLUTTER_TIP_FRACTION * panel_length_m))
+
+
+def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4
+                ) -> Callable[[float], tuple[np.ndarray, float, None, bool]]:
+    """``measure(U)`` for :func:`run_procedure`: command U, march the run-in, then the dwell, sampled every
+    ``steps_per_sample`` physics steps (block march). Returns the measured tip of the dwell."""
+    dt = rig.dt_s * steps_per_sample
+
+    def measure(u: float) -> tuple[np.ndarray, float, None, bool]:
+        if not rig.command_airspeed(u).accepted:
+            return np.zeros(0), dt, None, True
+        settle = rig.advance_samples([steps_per_sample] * int(round(settings.settle_s / dt)))
+        rig.emit_block(settle)  # to the rig's sinks (bag, viewer), as the node publishes its blocks
+        blk = rig.advance_samples([steps_per_sample] * int(round(settings.dwell_s / dt)))
+        rig.emit_block(blk)
+        tip = np.concatenate([settle.tip_w_m, blk.tip_w_m])
+        return blk.tip_w_m, dt, None, fluttered(tip, rig.panel_length_m, rig.state != RUNNING)
+
+    return measure
+
+
+def default_plan(uf_model_mps: float, margin: float = 0.1, start_mps: float | None = None,
+                 **changes) -> FlutterTestSettings:
+    """Test plan from the pre-test model's U_f: start at half of it, steps of a tenth of it."""
+    return FlutterTestSettings(start_mps=start_mps if start_mps is not None else 0.5 * uf_model_mps,
+                               step_mps=0.1 * uf_model_mps, margin=margin, **changes)
+
+
+def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,
+               margin: float = 0.1, start_mps: float | None = None,
+               on_point: Callable[[TestPoint, Decision], None] | None = None
+               ) -> tuple[FlutterTestResult, float]:
+    """The whole procedure on a fresh in-process Rig of ``cfg``; returns (result, the model's linear U_f)."""
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+
+    st = Stepper(cfg, variant=variant)
+    found = model_flutter_speed(st.model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s")
+    uf, mode = found
+    settings = settings or default_plan(uf, margin, start_mps)
+    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
+                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
+    rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
+    return run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
+
+
+class FlutterMonitorSink:
+    """Live flutter monitor as a Rig sink (the node adds it with ``flutter_monitor:=true``): collects the measured
+    tip of each airspeed plateau (from an accepted ``airspeed_cmd`` + ``settle_s`` to the next one), and when the
+    plateau ends identifies it, updates the predictors and calls ``publish(time_s, point, decision)``. Plateaus
+    shorter than ``min_dwell_s`` or at U <= 0 are skipped; the identification runs in the caller's thread (a few
+    seconds per point: meant for fast mode)."""
+
+    def __init__(self, cfg: PanelConfig, model, publish: Callable[[float, TestPoint, Decision], None],
+                 margin: float = 0.1, settle_s: float = 5.0, min_dwell_s: float = 20.0) -> None:
+        from panel_rig.analysis.vg import model_flutter_speed
+
+        found = model_flutter_speed(model)
+        self.enabled = found is not None
+        self.uf_model, mode = found if found is not None else (float("nan"), 2)
+        self.bands = bands_from_model(model, mode)
+        self.settings = FlutterTestSettings(start_mps=0.0, step_mps=0.1 * self.uf_model, margin=margin)
+        self.publish, self.settle_s, self.min_dwell_s = publish, settle_s, min_dwell_s
+        self.points: list[TestPoint] = []
+        self._u: float | None = None
+        self._t0 = 0.0
+        self._t: list[np.ndarray] = []
+        self._y: list[np.ndarray] = []
+
+    def on_reading(self, reading) -> None:
+        self._take(np.array([reading.time_s]), np.array([reading.tip_w_m]))
+
+    def on_block(self, block) -> None:
+        self._take(block.time_s, block.tip_w_m)
+
+    def _take(self, t: np.ndarray, y: np.ndarray) -> None:
+        if self._u is None:
+            return
+        keep = t >= self._t0 + self.settle_s
+        if np.any(keep):
+            self._t.append(np.asarray(t)[keep])
+            self._y.append(np.asarray(y)[keep])
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        if name != "airspeed_cmd" or not accepted or not self.enabled:
+            return
+        self.finish(time_s)
+        self._u, self._t0, self._t, self._y = float(value), float(time_s), [], []
+
+    def finish(self, time_s: float) -> None:
+        """Identify the plateau in progress (if long enough) and publish."""
+        if self._u is None or self._u <= 0 or not self._t:
+            return
+        t, y = np.concatenate(self._t), np.concatenate(self._y)
+        self._t, self._y = [], []
+        if t[-1] - t[0] < self.min_dwell_s:
+            return
+        if self.points and self._u <= self.points[-1].airspeed_mps:
+            return  # the monitor follows the ascent only
+        dt = float(np.median(np.diff(t)))
+        grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+        from panel_rig.analysis.flutter_test import decide, identify_point
+
+        pt = identify_point(np.interp(grid, t, y), dt, self._u, self.bands(self._u))
+        self.points.append(pt)
+        self.publish(time_s, pt, decide(self.points, self.settings))
+
+    def close(self) -> None:
+        pass

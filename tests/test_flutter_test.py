@@ -1,0 +1,146 @@
+"""The flutter-test procedure core (panel_rig.analysis.flutter_test): decisions on synthetic test points, and the
+whole procedure on the in-process Rig with the default turbulence and sensor (no ROS)."""
+
+import numpy as np
+import pytest
+
+from panel_rig.analysis.flutter_test import FlutterTestSettings, TestPoint, decide, tap_start
+from panel_rig.analysis.identification import ModalEstimate
+from panel_rig.analysis.vg import vg_diagram
+from panel_rig.config import load_config
+from panel_rig.rig.flutter_run import default_plan, run_on_rig
+
+UF = 10.0  # synthetic flutter mode (no first mode: damping trend only): damping linear in U^2, zero at UF
+
+
+def _point(u, se=1e-4):
+    z = 0.01 * (1 - (u / UF) ** 2)
+    return TestPoint(u, None, ModalEstimate(20.0 - 0.5 * u, z, 0.01, se, 9, "synthetic"), "synthetic")
+
+
+def test_decide_caps_the_next_airspeed_and_stops_inside_the_margin():
+    s = FlutterTestSettings(start_mps=5.0, step_mps=2.0, margin=0.1)
+    d = decide([_point(5.0)], s)
+    assert d.next_airspeed_mps == pytest.approx(7.0) and d.prediction is None
+    pts = [_point(u) for u in (5.0, 6.0, 7.0, 8.0)]
+    d = decide(pts, s)
+    # a full step would go to 10 m/s (= U_f): capped at (1 - M) x the prediction
+    assert d.prediction.speed_mps == pytest.approx(UF, rel=0.02)
+    assert d.next_airspeed_mps == pytest.approx(0.9 * d.prediction.speed_mps)
+    assert "capped" in d.reason
+    d = decide(pts + [_point(9.2)], FlutterTestSettings(start_mps=5.0, step_mps=2.0, margin=0.1, min_damping=0.0))
+    assert d.stop and "margin" in d.reason
+    low = FlutterTestSettings(start_mps=5.0, step_mps=0.5, min_damping=0.009)
+    d = decide([_point(1.0), _point(4.0)], low)
+    assert d.stop and "damping" in d.reason
+
+
+def test_tap_start_is_the_first_sample_after_the_force():
+    f = np.zeros(100)
+    assert tap_start(None) is None and tap_start(f) is None
+    f[10:15] = 1.0
+    assert tap_start(f) == 15
+
+
+@pytest.fixture(scope="module")
+def paper_run():
+    cfg = load_config()
+    return run_on_rig(cfg, variant="full", margin=0.1)
+
+
+def test_procedure_on_the_rig_stops_short_and_predicts_the_flutter_speed(paper_run):
+    """Paper configuration, default turbulence and sensor, full nonlinear variant, dwell 200 s per point: the
+    procedure never flutters, never exceeds (1 - M) x the prediction current at the time of each command, stays
+    below 0.95 U_f, and the prediction it stops on (from points <= 0.95 U_f) is within 3 % of the model's linear
+    U_f; the identified flutter-mode damping is within 20 % of the model V-g at 0.6-0.9 U_f."""
+    res, uf = paper_run
+    assert not res.fluttered
+    assert res.max_airspeed_mps < 0.95 * uf
+    assert len(res.points) >= 4
+    for d, nxt in zip(res.decisions, res.points[1:]):
+        if d.prediction is not None:
+            assert nxt.airspeed_mps <= (1 - 0.1) * d.prediction.speed_mps + 1e-9
+    pred = res.final.prediction
+    assert pred is not None and pred.speed_mps == pytest.approx(uf, rel=0.03)
+    assert pred.ci_mps[0] <= pred.speed_mps <= pred.ci_mps[1]
+    from panel_rig.model.stepper import Stepper
+
+    model = Stepper(load_config(), variant="full").model
+    u = np.array([p.airspeed_mps for p in res.points])
+    vg = vg_diagram(model, u)
+    mode = int(np.argmin(np.abs(vg.frequency_hz[0] - res.points[0].flutter.frequency_hz))) + 1
+    for k, p in enumerate(res.points):
+        if 0.6 * uf <= p.airspeed_mps <= 0.9 * uf:
+            assert p.flutter.damping_ratio == pytest.approx(vg.damping_ratio[k, mode - 1], rel=0.2)
+            assert p.flutter.frequency_hz == pytest.approx(vg.frequency_hz[k, mode - 1], rel=5e-3)
+    d = res.as_dict()
+    assert d["fluttered"] is False and d["test_points"][0]["damping_ci"][0] < d["test_points"][0]["damping_ratio"]
+
+
+def test_default_plan_starts_at_half_the_model_speed():
+    s = default_plan(10.0)
+    assert s.start_mps == 5.0 and s.step_mps == 1.0 and s.margin == 0.1
+
+
+def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
+    """`panel-rig flutter-test --set panel.thickness_m=0.0004 --json` (short dwell to bound the test): the JSON keys
+    of the issue, no flutter, airspeeds below the model's U_f, a bag with the measured tip and the monitor."""
+    import json
+
+    from panel_rig.cli import main
+    from panel_rig.recording.series import load_series
+
+    code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", "30", "--json", "--bag-dir",
+                 str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["fluttered"] is False
+    for key in ("test_points", "predicted_flutter_speed_mps", "predicted_flutter_speed_ci_mps", "max_airspeed_mps",
+                "fluttered", "bag"):
+        assert key in out
+    assert set(out["test_points"][0]) >= {"airspeed_mps", "frequency_hz", "damping_ratio", "damping_ci"}
+    assert out["model_flutter_speed_mps"] > 11.0  # thicker panel: later flutter than the paper's 10.48 m/s
+    assert out["max_airspeed_mps"] < out["model_flutter_speed_mps"]
+    assert (tmp_path / "vg.png").stat().st_size > 0
+    rec = load_series(out["bag"])
+    assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=0.1)
+    # replay: the same identification on the bag gives the same points (the recorded tip resampled on the
+    # recorded stamps), and a prediction
+    from panel_rig.cli import analyze_bag
+
+    ft = analyze_bag(out["bag"])["flutter_test"]
+    assert [p["airspeed_mps"] for p in ft["test_points"]] == pytest.approx(
+        [p["airspeed_mps"] for p in out["test_points"]])
+    for live, again in zip(out["test_points"], ft["test_points"]):
+        lo, hi = live["damping_ci"]
+        assert lo <= again["damping_ratio"] <= hi
+        assert again["frequency_hz"] == pytest.approx(live["frequency_hz"], rel=5e-3)
+    assert ft["predicted_flutter_speed_mps"] is not None
+
+
+def test_monitor_message_and_rerun_drawing_of_synthetic_points(tmp_path):
+    """The monitor's DiagnosticArray carries the point, the prediction with its interval and the margin (WARN once
+    the margin is below the required one); the Rerun logger draws them (strict mode: a bad call raises)."""
+    import rerun as rr
+
+    from panel_rig.ros.flutter_monitor import monitor_msg, parse_monitor
+    from panel_rig.viz.logger import RerunLogger
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=2.0, margin=0.1, min_damping=0.0)
+    pts = [_point(u) for u in (5.0, 6.0, 7.0, 8.0, 9.2)]
+    d = decide(pts, s)
+    msg = monitor_msg(123, pts[-1], d, 0.1)
+    v = parse_monitor(msg)
+    assert v["airspeed_mps"] == 9.2 and v["damping_ci_low"] < v["damping_ratio"] < v["damping_ci_high"]
+    assert v["predicted_flutter_speed_mps"] == pytest.approx(UF, rel=0.02)
+    assert v["margin"] == pytest.approx(1 - 9.2 / v["predicted_flutter_speed_mps"])
+    assert msg.status[0].level == b"\x01"  # WARN: inside the margin
+    was = rr.strict_mode()
+    rr.set_strict_mode(True)
+    try:
+        log = RerunLogger(3, mode="save", target=str(tmp_path / "m.rrd"))
+        for k in range(1, len(pts) + 1):
+            log.log_flutter_point(10.0 * k, pts[:k], decide(pts[:k], s), 0.1)
+        log.close()
+    finally:
+        rr.set_strict_mode(was)
+    assert (tmp_path / "m.rrd").stat().st_size > 0
