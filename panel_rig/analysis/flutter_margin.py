@@ -107,7 +107,7 @@ def flutter_margin_speed(airspeeds_mps: np.ndarray, poles_a: np.ndarray, poles_b
 
 def _percentiles(samples: np.ndarray, level: float) -> tuple[float, float]:
     # no interpolation between order statistics: a draw without crossing (inf) must give an open bound, not nan
-    lo, hi = np.quantile(np.nan_to_num(samples, nan=np.inf), [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
+    lo, hi = np.quantile(np.nan_to_num(samples, nan=np.inf, posinf=np.inf), [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
     return float(lo), float(hi)
 
 
