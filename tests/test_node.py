@@ -660,3 +660,37 @@ def test_real_time_node_parameters_round_trip_and_ros_clock_stamps(
     assert "stamped with the ROS clock" in out
     assert f"physics parameters given: {len(SCHEMA)} of {len(SCHEMA)}" in out  # --params applied in /rt
     assert set(Path(tempfile.gettempdir()).glob("panel_rig_params_*")) == temp_files  # no temporary copies
+
+
+def test_exact_node_climbs_to_25_mps_in_fast_mode(ros_env: dict[str, str], client: Client) -> None:
+    """The node with `model.variant: exact` and its default (wall-contact) tip limit climbs an airspeed staircase
+    to 25 m/s in fast mode: the panel flutters above U_f, stays inside the walls, and the rig never aborts."""
+    proc = subprocess.Popen(node_cmd("fast:=true", "model.variant:=exact", "tunnel.time_constant_s:=0.5",
+                                     "diagnostics_rate_hz:=10.0", namespace="/ex"),
+                            env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    tips: list[tuple[float, float]] = []
+    air: list[float] = []
+    sub_tip = client.node.create_subscription(PointStamped, "/ex/tip_displacement/truth",
+                                              lambda m: tips.append((stamp_s(m), m.point.z)), qos_profile_sensor_data)
+    sub_air = client.node.create_subscription(Vector3Stamped, "/ex/airspeed", lambda m: air.append(m.vector.x),
+                                              qos_profile_sensor_data)
+    pub = client.node.create_publisher(Float64, "/ex/airspeed_cmd", RELIABLE)
+    try:
+        client.wait(lambda: len(tips) > 10 and pub.get_subscription_count() > 0, 60.0, "the exact node's readings")
+        for u in (8.0, 12.0, 16.0, 20.0, 25.0):
+            pub.publish(Float64(data=u))
+            t_cmd = tips[-1][0]
+            client.wait(lambda t_cmd=t_cmd: tips[-1][0] > t_cmd + 4.0, 60.0, f"4 s at {u} m/s")
+            assert proc.poll() is None, proc.stdout.read()[-2000:] if proc.stdout else ""
+        assert max(air) > 24.9
+        late = np.array([z for t, z in tips if t > tips[-1][0] - 2.0]) / load_config().panel_length_m
+        assert np.sqrt(np.mean(late**2)) > 0.1  # fluttering at 25 m/s
+        assert np.max(np.abs([z for _, z in tips])) / load_config().panel_length_m < 0.25 / 0.27  # inside the walls
+    finally:
+        client.node.destroy_subscription(sub_tip)
+        client.node.destroy_subscription(sub_air)
+        client.node.destroy_publisher(pub)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out[-2000:]
+    assert "rig aborted" not in out, out[-2000:]

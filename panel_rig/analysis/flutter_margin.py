@@ -106,8 +106,9 @@ def flutter_margin_speed(airspeeds_mps: np.ndarray, poles_a: np.ndarray, poles_b
 
 
 def _percentiles(samples: np.ndarray, level: float) -> tuple[float, float]:
-    # no interpolation between order statistics: draws with no crossing (inf) give an open (inf) bound, not NaN
-    lo, hi = np.quantile(samples, [0.5 * (1 - level), 0.5 * (1 + level)], method="inverted_cdf")
+    # no interpolation between order statistics: draws with no crossing (inf, or nan) give an open (inf) bound
+    finite = np.nan_to_num(samples, nan=np.inf, posinf=np.inf)
+    lo, hi = np.quantile(finite, [0.5 * (1 - level), 0.5 * (1 + level)], method="inverted_cdf")
     return float(lo), float(hi)
 
 
