@@ -101,7 +101,8 @@ def test_cli_vg_json_and_plot(tmp_path, vg):
     for p in d["vg"]:
         assert len(p["modes"]) == 3 and set(p["modes"][0]) == {"frequency_hz", "damping_ratio"}
         k = int(round(p["airspeed_mps"] / 0.5))
-        assert [m["damping_ratio"] for m in p["modes"]] == pytest.approx(vg.damping_ratio[k], rel=1e-9)
+        # the CLI ran in another process: LAPACK may round differently there, so 1e-6, not bit equality
+        assert [m["damping_ratio"] for m in p["modes"]] == pytest.approx(vg.damping_ratio[k], rel=1e-6)
     assert png.stat().st_size > 10_000
 
 
