@@ -382,9 +382,10 @@ def test_signal_exits_cleanly_in_real_time(ros_env: dict[str, str], client: Clie
             return [v for v in values if v.get("mode") == "real-time"]
 
         client.got["diag"].clear()
-        client.wait(lambda: len(rt_diags()) >= 3, 30.0, "real-time diagnostics")
-        rtf = float(rt_diags()[-1]["real_time_factor"])
-        assert rtf == pytest.approx(1.0, abs=0.1)
+        # the first windows may hold the start (the clock runs from construction; a first tick that cannot catch
+        # up counts an overrun and slips): wait for a window in steady real time, which a slow node never shows
+        client.wait(lambda: len(rt_diags()) >= 3 and abs(float(rt_diags()[-1]["real_time_factor"]) - 1.0) < 0.1,
+                    30.0, "a real-time diagnostics window at a real-time factor of 1 +- 0.1")
         own = shm_mapped([proc.pid])
     finally:
         proc.send_signal(sig)
