@@ -2,6 +2,11 @@
 per-task overhead, and the inputs of the 100,000-case estimate in docs/studies.md.
 
     python benchmarks/study.py [--json] [--spec config/studies/flutter_map.yaml] [--workers 2] [--noop 2000]
+                               [--full-aero]
+
+--full-aero also runs config/studies/flutter_map_full.yaml (the same 400 cases with the full-order lattice, as
+`panel-rig flutter` computes by default; ~0.4 s a case, ~7 min for the benchmark) and reports its keys with the
+suffix ``_full_aero``: with cases 10x heavier, the cluster's fixed start-up cost weighs less.
 
 serial: the same case function (panel_rig.studies.cases.flutter_case) in a plain loop in this process, no Dask,
 one BLAS thread as in a Dask worker (set before numpy is imported; `run.py --study` imports numpy first).
@@ -35,7 +40,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def serial(study) -> dict[str, float]:
     from panel_rig.studies.cases import flutter_case, warm_up
 
-    warm_up()
+    warm_up(study.kind)
     load = os.getloadavg()[0]
     t0, c0 = time.perf_counter(), time.process_time()
     times = [flutter_case(study.config_values(c), study.options["aero"], study.options["formulation"])["compute_s"]
@@ -60,6 +65,8 @@ def cluster(study, workers: int, noop: int) -> dict[str, float]:
                    cluster_write_s=info["write_s"], cluster_case_mean_s=case_sum / len(study.cases),
                    study_overhead_per_case_s=(compute_wall * workers - case_sum) / len(study.cases),
                    write_per_case_s=info["write_s"] / len(study.cases), cluster_load_end=os.getloadavg()[0])
+    if not noop:
+        return out
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None, silence_logs=logging.CRITICAL) as lc, Client(lc) as client:
         client.gather(client.map(lambda i: i, range(50), pure=False))  # connections up
@@ -97,8 +104,12 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--noop", type=int, default=2000, help="no-op tasks for the per-task overhead")
     ap.add_argument("--skip-serial", action="store_true")
+    ap.add_argument("--full-aero", action="store_true", help="also the 400-case map with the full-order lattice")
     args = ap.parse_args()
     res = measure(args.spec, args.workers, args.noop, not args.skip_serial)
+    if args.full_aero:
+        full = measure(ROOT / "config" / "studies" / "flutter_map_full.yaml", args.workers, 0, not args.skip_serial)
+        res.update({f"{k}_full_aero": v for k, v in full.items()})
     if args.json:
         print(json.dumps(res))
     else:

@@ -27,16 +27,18 @@ BIFURCATION_VARS = ("rms_tip_w_over_L", "peak_tip_w_over_L", "dominant_frequency
 WARMUPS = 0
 
 
-def warm_up() -> dict[str, Any]:
-    """Import the analysis stack and load every compiled kernel a study calls (numba's cache), once per worker."""
+def warm_up(kind: str = "bifurcation") -> dict[str, Any]:
+    """Import the analysis stack and load the compiled kernels a study of ``kind`` calls (numba's cache), once per
+    worker: the flutter kinds need only the eigenvalue path (ROM and full lattice); bifurcation the steppers."""
     global WARMUPS
     t0 = time.perf_counter()
     cfg = load_config()
     model = AeroelasticModel(cfg)
     eigenvalues(model, 10.0, aero="rom", rom_modes=cfg.rom_modes)
-    st = Stepper(cfg, model=model)
-    st.advance(2, 5.0)
-    BatchStepper(st, 2).advance(2, np.array([5.0, 6.0]))
+    if kind == "bifurcation":
+        st = Stepper(cfg, model=model)
+        st.advance(2, 5.0)
+        BatchStepper(st, 2).advance(2, np.array([5.0, 6.0]))
     WARMUPS += 1
     return {"pid": os.getpid(), "warm_s": time.perf_counter() - t0, "warmups": WARMUPS}
 

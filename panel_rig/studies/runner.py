@@ -28,13 +28,17 @@ STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: "none below 60 m/s", C.FAILED:
 
 
 class WarmUp(WorkerPlugin):
-    """Warm the compiled kernels once in every worker process (also in one that the nanny restarts)."""
+    """Warm the compiled kernels a study of ``kind`` uses, once in every worker process (also in one that the nanny
+    restarts); one plugin per kind, so a shared cluster warms the steppers when its first bifurcation study comes."""
 
-    name = "panel-rig-warm-up"
     idempotent = True
 
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.name = f"panel-rig-warm-up-{kind}"
+
     def setup(self, worker: Any) -> None:
-        C.warm_up()
+        C.warm_up(self.kind)
 
 
 @contextlib.contextmanager
@@ -142,7 +146,7 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
                 total=len(study.cases), initial=len(study.cases) - missing.size, disable=not progress,
                 file=sys.stderr, desc=study.kind, unit="case", dynamic_ncols=True) as bar:
             info["workers"] = n_workers(client)
-            client.register_plugin(WarmUp())
+            client.register_plugin(WarmUp(study.kind))
             info["ready_s"] = time.perf_counter() - t0  # cluster up (or connected) and every worker warm
             if study.kind == "bifurcation":
                 done = store.done_mask()
