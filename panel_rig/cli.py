@@ -309,7 +309,7 @@ def cmd_gust(args: argparse.Namespace) -> int:
     if not (np.isfinite(wake) and 1 <= wake <= 500):
         raise UsageError(f"--wake-chords must be in [1, 500], got {wake}")
     points = sears_comparison(cfg, ks, wake)
-    payload = {"points": points, "elements": cfg.n_elements, "wake_chords": wake}
+    payload = {"points": points, "elements": cfg.n_elements, "wake_chords": wake, "running_sum": cfg.running_sum}
     _emit(args, payload, lambda: "     k   |L|/(2 pi rho U b w0)   phase (deg)   Sears |S|   Sears phase (deg)\n" + "\n".join(
         f"{p['k']:6.3f}  {p['lift_magnitude']:21.4f}  {p['lift_phase_deg']:12.2f}  {p['sears_magnitude']:10.4f}"
         f"  {p['sears_phase_deg']:18.2f}" for p in points))

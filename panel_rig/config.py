@@ -42,6 +42,7 @@ class PanelConfig:
     wake_relaxation: float = 0.992
     rom_modes: int = 12
     load_point: str = "quarter"
+    running_sum: str = "inclusive"
     dt_s: float = 1.0 / 2048.0
     max_tip_w_over_L: float = 2.0
     # the tunnel and the tip sensor around the model (used by panel_rig/rig/: turbulence.py, sensor.py; the model
@@ -142,6 +143,7 @@ def _choice(field: str, choices: tuple[str, ...]) -> _Spec:
 
 
 LOAD_POINTS = ("quarter", "three_quarter", "center")
+RUNNING_SUMS = ("inclusive", "midpoint", "vortex")  # = panel_rig.model.aerodynamics.RUNNING_SUM_OWN's keys
 TURBULENCE_SPECTRA = ("dryden", "von_karman", "off")  # = panel_rig.rig.turbulence.SPECTRA (config is the top layer)
 
 SCHEMA: dict[str, _Spec] = {
@@ -159,6 +161,7 @@ SCHEMA: dict[str, _Spec] = {
     "aero.wake_relaxation": _num("wake_relaxation", 0.0, 1.0, lo_open=True, hi_open=True),
     "aero.rom_modes": _num("rom_modes", 1, kind=int),
     "aero.load_point": _choice("load_point", LOAD_POINTS),
+    "aero.running_sum": _choice("running_sum", RUNNING_SUMS),
     "sim.dt_s": _num("dt_s", 0.0, 0.01, lo_open=True),
     "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, lo_open=True),
     "tunnel.turbulence.intensity": _num("turbulence_intensity", 0.0, 0.2),  # sigma / U

@@ -34,7 +34,7 @@ def kuessner(s: np.ndarray, k_max: float = 400.0, n: int = 400_001) -> np.ndarra
 def gust_lattice(cfg: PanelConfig, wake_chords: float = GUST_WAKE_CHORDS):
     """The configuration's lattice with a wake of ``wake_chords`` chords."""
     n_wake = max(2, int(round(wake_chords * cfg.n_elements)))
-    return build_lattice(cfg.chord_m, cfg.n_elements, n_wake, cfg.wake_relaxation)
+    return build_lattice(cfg.chord_m, cfg.n_elements, n_wake, cfg.wake_relaxation, cfg.running_sum)
 
 
 def sears_comparison(cfg: PanelConfig, ks, wake_chords: float = GUST_WAKE_CHORDS) -> list[dict]:

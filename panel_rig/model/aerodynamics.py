@@ -21,6 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Eq. (4)'s running sum of the potential jump at element j: the share of element j's own vortex it includes.
+#: "inclusive" is Eq. (4) as printed (all of it: first order in dx); "midpoint" counts half of it (the jump at the
+#: element centre, as for a vortex sheet of uniform strength over each element: second order); "vortex" counts
+#: the part of the element behind its quarter-point vortex, 3/4 (the exact integral of the jump of point vortices).
+RUNNING_SUM_OWN = {"inclusive": 1.0, "midpoint": 0.5, "vortex": 0.75}
+
 
 @dataclass(frozen=True)
 class VortexLattice:
@@ -33,6 +39,12 @@ class VortexLattice:
     x_colloc_m: np.ndarray  # (km,) collocation points (3/4 of each body element), m
     A: np.ndarray  # (kmm, kmm)
     B: np.ndarray  # (kmm, kmm)
+    running_sum: str = "inclusive"  # Eq. (4)'s running sum, a key of RUNNING_SUM_OWN
+
+    @property
+    def own(self) -> float:
+        """Share of element j's own vortex in the potential jump at element j (Eq. 4)."""
+        return RUNNING_SUM_OWN[self.running_sum]
 
     @property
     def size(self) -> int:
@@ -44,10 +56,14 @@ class VortexLattice:
         return np.linalg.solve(self.A + self.B, np.eye(self.size)[:, : self.n_body])
 
 
-def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float) -> VortexLattice:
-    """Assemble A and B of Eq. (3) for equal elements dx = chord / n_body on body and wake."""
+def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float,
+                  running_sum: str = "inclusive") -> VortexLattice:
+    """Assemble A and B of Eq. (3) for equal elements dx = chord / n_body on body and wake; ``running_sum`` is the
+    discretisation of Eq. (4)'s potential jump (a key of RUNNING_SUM_OWN)."""
     if n_body < 1 or n_wake < 2:
         raise ValueError("need at least 1 body element and 2 wake elements")
+    if running_sum not in RUNNING_SUM_OWN:
+        raise ValueError(f"running_sum must be one of {tuple(RUNNING_SUM_OWN)}, got {running_sum!r}")
     dx = chord_m / n_body
     n = n_body + n_wake
     xv = np.arange(n) + 0.25  # in dx units
@@ -63,25 +79,30 @@ def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float) -
         A[j, j] = 1.0
         B[j, j - 1] = -1.0
     B[n - 1, n - 1] = -relaxation  # last vortex: gamma^{n+1} = gamma_{n-2}^n + relaxation * gamma^n
-    return VortexLattice(n_body, n_wake, dx, xv * dx, xc * dx, A, B)
+    return VortexLattice(n_body, n_wake, dx, xv * dx, xc * dx, A, B, running_sum)
 
 
 def lattice_for(cfg) -> VortexLattice:
-    """The lattice of a PanelConfig (airfoil + panel, km elements, its wake and relaxation)."""
-    return build_lattice(cfg.chord_m, cfg.n_elements, cfg.n_wake, cfg.wake_relaxation)
+    """The lattice of a PanelConfig (airfoil + panel, km elements, its wake and relaxation, Eq. 4's running sum)."""
+    return build_lattice(cfg.chord_m, cfg.n_elements, cfg.n_wake, cfg.wake_relaxation, cfg.running_sum)
 
 
-def cumulative_sum_matrix(n: int) -> np.ndarray:
-    """S with (S g)_j = sum_{i <= j} g_i: the potential jump at element j (Eq. 4)."""
-    return np.tril(np.ones((n, n)))
+def cumulative_sum_matrix(n: int, own: float = 1.0) -> np.ndarray:
+    """S with (S g)_j = sum_{i < j} g_i + own g_j: the potential jump at element j (Eq. 4; own = 1 as printed)."""
+    return np.tril(np.ones((n, n))) - (1.0 - own) * np.eye(n)
+
+
+def running_sum(lat: VortexLattice, d: np.ndarray) -> np.ndarray:
+    """S d along the last axis (body elements): the running sum of Eq. (4) with the lattice's share of own vortex."""
+    return np.cumsum(d, axis=-1) - (1.0 - lat.own) * d
 
 
 def pressure_jump(lat: VortexLattice, airspeed_mps: float, rho_kgpm3: float,
                   gamma_new: np.ndarray, gamma_old: np.ndarray, dt_s: float) -> np.ndarray:
-    """Delta p on each body element over one step (Eq. 4), Pa: rho [U gamma_mid + dx sum_{i<=j} dgamma_i/dt]."""
+    """Delta p on each body element over one step (Eq. 4), Pa: rho [U gamma_mid + dx (S dgamma/dt)_j]."""
     nb = lat.n_body
     mid = 0.5 * (gamma_new[..., :nb] + gamma_old[..., :nb])
-    rate = np.cumsum(gamma_new[..., :nb] - gamma_old[..., :nb], axis=-1) / dt_s
+    rate = running_sum(lat, gamma_new[..., :nb] - gamma_old[..., :nb]) / dt_s
     return rho_kgpm3 * (airspeed_mps * mid + lat.dx_m * rate)
 
 
@@ -131,7 +152,7 @@ def harmonic_lift(lat: VortexLattice, k_reduced: float, w_shape: np.ndarray, w_s
     w[:nb] = -(1j * k_reduced * w_shape + w_slope)
     gamma = np.linalg.solve(z * lat.A + lat.B, z * w)  # gamma / U at step n+1 relative to e^{i omega t}
     g_new, g_old = gamma, gamma / z
-    dp = (0.5 * (g_new[:nb] + g_old[:nb]) + np.cumsum(g_new[:nb] - g_old[:nb]))  # Eq. (4), / (rho U^2)
+    dp = (0.5 * (g_new[:nb] + g_old[:nb]) + running_sum(lat, g_new[:nb] - g_old[:nb]))  # Eq. (4), / (rho U^2)
     # evaluate at mid-step: the pair (new, old) straddles t + dt_a / 2
     return complex(np.sum(dp) * lat.dx_m / b * np.exp(0.5j * theta))
 
@@ -157,15 +178,12 @@ def harmonic_body_circulation(lat: VortexLattice, theta: float, w_body: np.ndarr
     return np.linalg.solve(M, np.asarray(w_body, dtype=complex))
 
 
-def sinusoidal_gust_lift(lat: VortexLattice, k_reduced: float, x_ref_m: float | None = None,
-                         running_sum: str = "inclusive") -> complex:
+def sinusoidal_gust_lift(lat: VortexLattice, k_reduced: float, x_ref_m: float | None = None) -> complex:
     """Lift of the rigid lattice in a convected sinusoidal vertical gust, normalised by 2 pi rho U b w0 (Sears).
 
     Gust (Taylor's frozen field): w_g(x, t) = w0 Re exp[i omega (t - (x - x_ref) / U)], k = omega b / U with b
     the semi-chord of the whole body (airfoil + panel); the phase is referred to the gust at x_ref (default
-    mid-chord). ``running_sum``: "inclusive" is Eq. (4) as printed (the potential jump at element j includes
-    its own vortex: the model's force, first order in dx); "midpoint" counts half of it (second order), for
-    the convergence study only.
+    mid-chord). The pressure is the model's Eq. (4) with the lattice's running sum (``lat.running_sum``).
     """
     nb = lat.n_body
     b = 0.5 * nb * lat.dx_m
@@ -175,9 +193,7 @@ def sinusoidal_gust_lift(lat: VortexLattice, k_reduced: float, x_ref_m: float | 
     w = np.exp(-1j * k_reduced * (lat.x_colloc_m - x_ref) / b)  # w / w0 at t_{n+1}
     g_new = harmonic_body_circulation(lat, theta, w)  # gamma / w0
     g_old = g_new / z
-    d = g_new - g_old
-    run = np.cumsum(d) - (0.5 * d if running_sum == "midpoint" else 0.0)
-    dp = 0.5 * (g_new + g_old) + run  # Eq. (4) / (rho U w0), per element
+    dp = 0.5 * (g_new + g_old) + running_sum(lat, g_new - g_old)  # Eq. (4) / (rho U w0), per element
     return complex(np.sum(dp) * lat.dx_m * np.exp(0.5j * theta) / (2.0 * np.pi * b))
 
 

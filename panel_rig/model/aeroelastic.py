@@ -86,7 +86,7 @@ class ContinuousAero:
 def continuous_aero(cp: Coupling, lat: VortexLattice, rom: AeroROM) -> ContinuousAero:
     """Assemble the continuous-time ROM terms (see module docstring of rom.py for xi)."""
     nb, dx = lat.n_body, lat.dx_m
-    S = cumulative_sum_matrix(nb)
+    S = cumulative_sum_matrix(nb, lat.own)
     Gs_b = rom.static[:nb]
     X_b = rom.X[:nb]
     H = Gs_b + X_b @ rom.G
@@ -153,7 +153,7 @@ class AeroelasticModel:
         lat, cp, n = self.lattice, self.coupling, self.structure.n_modes
         U, N, nb = airspeed_mps, lat.size, lat.n_body
         dt = lat.dx_m / U
-        S = cumulative_sum_matrix(nb)
+        S = cumulative_sum_matrix(nb, lat.own)
         D2, D1n = self._structure_rows(dt)
         LHS = np.zeros((N + 2 * n, N + 2 * n))
         RHS = np.zeros_like(LHS)
@@ -173,7 +173,7 @@ class AeroelasticModel:
         rom = self.rom(n_modes)
         U, nb, r = airspeed_mps, lat.n_body, rom.n_states
         dt = lat.dx_m / U
-        S = cumulative_sum_matrix(nb)
+        S = cumulative_sum_matrix(nb, lat.own)
         W = -np.hstack([cp.E_vel, U * cp.E_slope])  # w = W (v, q)
         D2, D1n = self._structure_rows(dt)
         C2 = cp.force_scale * cp.Psi @ (U / 2 * np.eye(nb) + lat.dx_m / dt * S)

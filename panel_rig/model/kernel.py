@@ -201,7 +201,6 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     tmp_r = np.zeros(r)
     c0 = np.zeros(r)
     W = np.zeros((r, n))
-    col = np.zeros(r)
     Cu = np.zeros((n, n))
     Ku = np.zeros((n, n))
     QW = np.zeros((n, n))
@@ -215,21 +214,37 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     xi_part = np.zeros(n)
     la = np.zeros(lam_a.shape[0])
     lb = np.zeros(lam_a.shape[0])
+    inv_a = np.zeros(lam_a.shape[0])
+    inv_b = np.zeros(lam_a.shape[0])
     U_prev = -1.0
     ng = Pg_seq.shape[1]
     fg = np.zeros(n)
     for step in range(U_seq.shape[0]):
         U = U_seq[step]
         if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
+            # (in turbulence u' changes U every step: the block inverses are formed once here, one division per
+            # block, and applied to the n columns by multiplication)
             for k in range(la.shape[0]):
                 la[k] = lam_a[k] * (U / dx)
                 lb[k] = lam_b[k] * (U / dx)
+                ak, bk = h * la[k], h * lb[k]
+                if blk_len[k] == 1:
+                    inv_a[k] = 1.0 / (1.0 - ak)
+                    inv_b[k] = 0.0
+                else:  # [[1-a, -b], [b, 1-a]]^{-1} = [[1-a, b], [-b, 1-a]] / det
+                    det = 1.0 / ((1.0 - ak) ** 2 + bk**2)
+                    inv_a[k] = (1.0 - ak) * det
+                    inv_b[k] = bk * det
             for j in range(n):
-                for k in range(r):
-                    tmp_r[k] = Gv[k, j] + U * h * Gs[k, j]
-                _block_apply(blk_off, blk_len, la, lb, tmp_r, col, True, h)
-                for k in range(r):
-                    W[k, j] = col[k]
+                for k in range(blk_off.shape[0]):
+                    o = blk_off[k]
+                    x0 = Gv[o, j] + U * h * Gs[o, j]
+                    if blk_len[k] == 1:
+                        W[o, j] = inv_a[k] * x0
+                    else:
+                        x1 = Gv[o + 1, j] + U * h * Gs[o + 1, j]
+                        W[o, j] = inv_a[k] * x0 + inv_b[k] * x1
+                        W[o + 1, j] = inv_a[k] * x1 - inv_b[k] * x0
             for i in range(n):
                 for j in range(n):
                     Cu[i, j] = C[i, j] + U * Ca[i, j]

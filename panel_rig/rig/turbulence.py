@@ -162,8 +162,11 @@ def _generate(U_seq, dt, scales_m, amp, noise, y_u, y_w1, y_w2, out_u, out_w):
 @njit(cache=True)
 def _convect(U_seq, dt, x_m, x_u_m, hist_u, hist_w, head, src_u, src_w, out_u, out_w, min_speed):
     """Frozen field: at step i the value at x is the leading-edge series delayed by x / U (linear interpolation in
-    a ring buffer of past leading-edge values). Returns the new head. Delays are recomputed when U changes."""
-    H = hist_w.shape[0]
+    a ring buffer of past leading-edge values). Returns the new head. Delays are recomputed when U changes.
+
+    The ring buffers hold H = len / 2 values twice (at head and head + H), so the delayed pair (base - n, base - n - 1)
+    with base = head + H never wraps: no branch in the loop over the collocation points."""
+    H = hist_w.shape[0] // 2
     m = x_m.shape[0]
     n0 = np.zeros(m + 1, np.int64)
     fr = np.zeros(m + 1)
@@ -173,7 +176,9 @@ def _convect(U_seq, dt, x_m, x_u_m, hist_u, hist_w, head, src_u, src_w, out_u, o
         if head == H:
             head = 0
         hist_u[head] = src_u[i]
+        hist_u[head + H] = src_u[i]
         hist_w[head] = src_w[i]
+        hist_w[head + H] = src_w[i]
         if U_seq[i] != U_prev:
             U_prev = U_seq[i]
             speed = max(U_prev, min_speed)
@@ -181,21 +186,12 @@ def _convect(U_seq, dt, x_m, x_u_m, hist_u, hist_w, head, src_u, src_w, out_u, o
                 d = min((x_m[j] if j < m else x_u_m) / (speed * dt), H - 2.0)
                 n0[j] = int(math.floor(d))
                 fr[j] = d - n0[j]
+        base = head + H
         for j in range(m):
-            a = head - n0[j]
-            if a < 0:
-                a += H
-            b = a - 1
-            if b < 0:
-                b += H
-            out_w[i, j] = (1.0 - fr[j]) * hist_w[a] + fr[j] * hist_w[b]
-        a = head - n0[m]
-        if a < 0:
-            a += H
-        b = a - 1
-        if b < 0:
-            b += H
-        out_u[i] = (1.0 - fr[m]) * hist_u[a] + fr[m] * hist_u[b]
+            a = base - n0[j]
+            out_w[i, j] = (1.0 - fr[j]) * hist_w[a] + fr[j] * hist_w[a - 1]
+        a = base - n0[m]
+        out_u[i] = (1.0 - fr[m]) * hist_u[a] + fr[m] * hist_u[a - 1]
     return head
 
 
@@ -220,8 +216,8 @@ class Turbulence:
             self.scales_m = np.zeros(0)
             self.amp = np.zeros(0)
         n_hist = int(math.ceil(chord_m / (MIN_CONVECTION_SPEED_MPS * self.dt_s))) + 4
-        self._hist_u = np.zeros(n_hist)
-        self._hist_w = np.zeros(n_hist)
+        self._hist_u = np.zeros(2 * n_hist)  # each value twice, see _convect
+        self._hist_w = np.zeros(2 * n_hist)
         self._warm()
         self.reset()
 
@@ -231,7 +227,7 @@ class Turbulence:
         z = np.zeros(k)
         _generate(one, self.dt_s, np.ones(k), z, np.zeros((1, k, 3)), z.copy(), z.copy(), z.copy(), np.zeros(1),
                   np.zeros(1))
-        _convect(one, self.dt_s, self.x_colloc_m, self.x_u_m, np.zeros(4), np.zeros(4), 0, np.zeros(1), np.zeros(1),
+        _convect(one, self.dt_s, self.x_colloc_m, self.x_u_m, np.zeros(8), np.zeros(8), 0, np.zeros(1), np.zeros(1),
                  np.zeros(1), np.zeros((1, self.x_colloc_m.shape[0])), MIN_CONVECTION_SPEED_MPS)
 
     def reset(self) -> None:
@@ -280,7 +276,7 @@ class Turbulence:
             return out_u, out_w
         if not self._primed:  # the field already over the chord at start: run the process for one transit first
             lead = min(int(math.ceil(self.x_colloc_m[-1] / (max(U[0], MIN_CONVECTION_SPEED_MPS) * self.dt_s))) + 2,
-                       self._hist_w.shape[0] - 1)
+                       self._hist_w.shape[0] // 2 - 1)
             lu, lw = self.reference(np.full(lead, U[0]))
             self._head = _convect(np.full(lead, U[0]), self.dt_s, self.x_colloc_m[:0], self.x_u_m, self._hist_u,
                                   self._hist_w, self._head, lu, lw, np.zeros(lead), np.zeros((lead, 0)),
