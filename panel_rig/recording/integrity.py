@@ -156,6 +156,15 @@ def _one_record(raw: bytes) -> Any:
     return next(iter(reader.records))
 
 
+def _what_broke(exc: Exception) -> str:
+    """Plain words for a parser failure on corrupt bytes (no exception class names in a user's error line)."""
+    if isinstance(exc, UnicodeDecodeError):
+        return "a text field is not valid UTF-8"
+    if isinstance(exc, (struct.error, EOFError, IndexError)):
+        return "a length field points past the record"
+    return "its content does not parse"
+
+
 def _parse_chunk(raw: bytes) -> tuple[ChunkInfo, list[Any], str]:
     """(info, inner records, problem) of one chunk record; raw starts at its opcode."""
     start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(raw, 9)
@@ -165,7 +174,7 @@ def _parse_chunk(raw: bytes) -> tuple[ChunkInfo, list[Any], str]:
         records = breakup_chunk(chunk, validate_crc=False)
         data = _chunk_data(chunk)
     except Exception as exc:  # noqa: BLE001 - corrupt content can fail anywhere in the parser
-        return info, [], f"unreadable chunk ({type(exc).__name__})"
+        return info, [], f"unreadable chunk ({_what_broke(exc)})"
     if crc != 0 and zlib.crc32(data) != crc:
         return info, [], f"CRC mismatch (stored {crc:08x}, computed {zlib.crc32(data):08x})"
     if len(data) != usize:
@@ -361,7 +370,7 @@ def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int) -> None:
             try:
                 record = _one_record(raw)
             except Exception as exc:  # noqa: BLE001 - e.g. UnicodeDecodeError in a corrupt string
-                scan.problems.append(Problem(pos, f"corrupt record (opcode {opcode:#04x}: {type(exc).__name__})",
+                scan.problems.append(Problem(pos, f"corrupt record (opcode {opcode:#04x}: {_what_broke(exc)})",
                                              None, len(raw)))
             else:
                 if isinstance(record, Header):
