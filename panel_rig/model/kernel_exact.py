@@ -152,3 +152,86 @@ def exact_eval(q, v, psi, w, run, w_elem, n_elem, m_scale, with_jv, M_out, h_out
             M_out[i, j] += m_scale * acc
             if j != i:
                 M_out[j, i] += m_scale * acc
+
+
+#: rows of the scratch array of :func:`exact_force` (columns: the quadrature points)
+FORCE_WORK_ROWS = 14
+
+
+@njit(cache=True, fastmath=True)
+def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work):
+    """F_out = m_p L^3 [M(q) a + h(q, v)] - f_tip_n B(1; q): the strip's inertia force at acceleration a, less
+    the generalised dead tip force (f_tip_n = F L, N/m x m). If ``jac``, also J_out = dF/dx along the
+    line q = q0 + cq x, v = v0 + cv x, a = a0 + ca x (the time step's dependence on its unknown x = q_dot^{n+1};
+    midpoint rule: cq = dt/4, cv = 1/2, ca = 1/dt), i.e. the exact Newton matrix of the structural terms.
+
+    The same discrete Lagrangian as :func:`exact_eval`, summed the other way round (d'Alembert along the
+    strip): the point accelerations x_dd = R xi, w_dd = R eta with xi = -sin(theta) alpha - cos(theta) omega^2,
+    eta = cos(theta) alpha - sin(theta) omega^2 (alpha = a . psi, omega = v . psi, R the running integral), and
+    F_i = m sum_k psi_ik [-sin(theta_k) (R^T w x_dd)_k + cos(theta_k) (R^T w w_dd)_k] since A_i = R(-sin(theta) psi_i),
+    B_i = R(cos(theta) psi_i). Four running integrals per evaluation whatever the number of modes (exact_eval:
+    2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode. ``work``: (FORCE_WORK_ROWS, N) scratch."""
+    n, npts = psi.shape
+    f, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
+    X, W, Xt, Wt, P1, P2, P3, dX, dW = work[5], work[6], work[7], work[8], work[9], work[10], work[11], work[12], work[13]
+    for p in range(npts):
+        th = 0.0
+        b = 0.0
+        d = 0.0
+        for i in range(n):
+            th += q[i] * psi[i, p]
+            b += v[i] * psi[i, p]
+            d += a[i] * psi[i, p]
+        om[p] = b
+        al[p] = d
+        c[p] = np.cos(th)
+        s[p] = np.sin(th)
+    for p in range(npts):
+        f[p] = -s[p] * al[p] - c[p] * om[p] * om[p]  # xi
+    cumulative(f, run, w_elem, n_elem, X)
+    if jac:  # d xi / dx_j = psi_j P1, d eta / dx_j = psi_j P2 (theta, omega, alpha move by cq, cv, ca psi_j)
+        for p in range(npts):
+            P2[p] = cq * f[p] + ca * c[p] - 2.0 * cv * s[p] * om[p]
+    for p in range(npts):
+        f[p] = c[p] * al[p] - s[p] * om[p] * om[p]  # eta
+    cumulative(f, run, w_elem, n_elem, W)
+    if jac:
+        for p in range(npts):
+            P1[p] = -cq * f[p] - ca * s[p] - 2.0 * cv * c[p] * om[p]
+    for p in range(npts):
+        f[p] = w[p] * X[p]
+    cumulative_T(f, run, w_elem, n_elem, Xt)
+    for p in range(npts):
+        f[p] = w[p] * W[p]
+    cumulative_T(f, run, w_elem, n_elem, Wt)
+    for p in range(npts):
+        al[p] = m_scale * (c[p] * Wt[p] - s[p] * Xt[p]) - f_tip_n * w[p] * c[p]  # G_p: alpha is no longer needed
+    for i in range(n):
+        acc = 0.0
+        for p in range(npts):
+            acc += psi[i, p] * al[p]
+        F_out[i] = acc
+    if not jac:
+        return
+    for p in range(npts):  # d G_p = m (c dWt - s dXt) + psi_j P3 (the rotation of theta at p itself)
+        P3[p] = cq * (f_tip_n * w[p] * s[p] - m_scale * (c[p] * Xt[p] + s[p] * Wt[p]))
+    for j in range(n):
+        for p in range(npts):
+            f[p] = psi[j, p] * P1[p]
+        cumulative(f, run, w_elem, n_elem, dX)
+        for p in range(npts):
+            f[p] = w[p] * dX[p]
+        cumulative_T(f, run, w_elem, n_elem, Xt)  # Xt, Wt are no longer needed: dXt, dWt
+        for p in range(npts):
+            f[p] = psi[j, p] * P2[p]
+        cumulative(f, run, w_elem, n_elem, dW)
+        for p in range(npts):
+            f[p] = w[p] * dW[p]
+        cumulative_T(f, run, w_elem, n_elem, Wt)
+        for p in range(npts):
+            f[p] = m_scale * (c[p] * Wt[p] - s[p] * Xt[p]) + psi[j, p] * P3[p]
+        for i in range(n):
+            acc = 0.0
+            for p in range(npts):
+                acc += psi[i, p] * f[p]
+            J_out[i, j] = acc
