@@ -207,6 +207,7 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
     exact, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem = km.exact, km.ex_psi, km.ex_w, km.ex_run, km.ex_w_elem, km.ex_n_elem
     ex_work = np.zeros((FORCE_WORK_ROWS, ex_psi.shape[1]))
+    ex_jwork = np.zeros((3, ex_psi.shape[1], 2 * q.shape[0]))
     ex_J = np.zeros((q.shape[0], q.shape[0]))
     ex_F = np.zeros(q.shape[0])
     ex_a = np.zeros(q.shape[0])
@@ -302,7 +303,7 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                     Mt[i, i] -= m_scale
                     ex_a[i] = (x[i] - v[i]) / dt
                 exact_force(qm, vm, ex_a, F_seq[step] * km.ex_length, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem,
-                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work)
+                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork)
                 ex_new_j = False
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)

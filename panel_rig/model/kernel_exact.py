@@ -155,11 +155,12 @@ def exact_eval(q, v, psi, w, run, w_elem, n_elem, m_scale, with_jv, M_out, h_out
 
 
 #: rows of the scratch array of :func:`exact_force` (columns: the quadrature points)
-FORCE_WORK_ROWS = 14
+FORCE_WORK_ROWS = 12
 
 
 @njit(cache=True, fastmath=True)
-def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work):
+def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work,
+                jwork):
     """F_out = m_p L^3 [M(q) a + h(q, v)] - f_tip_n B(1; q): the strip's inertia force at acceleration a, less
     the generalised dead tip force (f_tip_n = F L, N/m x m). If ``jac``, also J_out = dF/dx along the
     line q = q0 + cq x, v = v0 + cv x, a = a0 + ca x (the time step's dependence on its unknown x = q_dot^{n+1};
@@ -170,10 +171,11 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
     eta = cos(theta) alpha - sin(theta) omega^2 (alpha = a . psi, omega = v . psi, R the running integral), and
     F_i = m sum_k psi_ik [-sin(theta_k) (R^T w x_dd)_k + cos(theta_k) (R^T w w_dd)_k] since A_i = R(-sin(theta) psi_i),
     B_i = R(cos(theta) psi_i). Four running integrals per evaluation whatever the number of modes (exact_eval:
-    2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode. ``work``: (FORCE_WORK_ROWS, N) scratch."""
+    2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode, evaluated side by side. Scratch: ``work``
+    (FORCE_WORK_ROWS, N), ``jwork`` (3, N, 2 n)."""
     n, npts = psi.shape
     f, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
-    X, W, Xt, Wt, P1, P2, P3, dX, dW = work[5], work[6], work[7], work[8], work[9], work[10], work[11], work[12], work[13]
+    X, W, Xt, Wt, P1, P2, P3 = work[5], work[6], work[7], work[8], work[9], work[10], work[11]
     for p in range(npts):
         th = 0.0
         b = 0.0
@@ -215,23 +217,68 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
         return
     for p in range(npts):  # d G_p = m (c dWt - s dXt) + psi_j P3 (the rotation of theta at p itself)
         P3[p] = cq * (f_tip_n * w[p] * s[p] - m_scale * (c[p] * Xt[p] + s[p] * Wt[p]))
-    for j in range(n):
-        for p in range(npts):
-            f[p] = psi[j, p] * P1[p]
-        cumulative(f, run, w_elem, n_elem, dX)
-        for p in range(npts):
-            f[p] = w[p] * dX[p]
-        cumulative_T(f, run, w_elem, n_elem, Xt)  # Xt, Wt are no longer needed: dXt, dWt
-        for p in range(npts):
-            f[p] = psi[j, p] * P2[p]
-        cumulative(f, run, w_elem, n_elem, dW)
-        for p in range(npts):
-            f[p] = w[p] * dW[p]
-        cumulative_T(f, run, w_elem, n_elem, Wt)
-        for p in range(npts):
-            f[p] = m_scale * (c[p] * Wt[p] - s[p] * Xt[p]) + psi[j, p] * P3[p]
-        for i in range(n):
-            acc = 0.0
-            for p in range(npts):
-                acc += psi[i, p] * f[p]
-            J_out[i, j] = acc
+    # all 2n directions at once, the direction innermost (independent sums, not one chain per direction):
+    # columns j < n: d xi / dx_j, columns n + j: d eta / dx_j
+    D, Dc, tot = jwork[0], jwork[1], jwork[2, 0]
+    for p in range(npts):
+        for j in range(n):
+            D[p, j] = psi[j, p] * P1[p]
+            D[p, n + j] = psi[j, p] * P2[p]
+    cumulative_cols(D, run, w_elem, n_elem, Dc, tot)
+    for p in range(npts):
+        for j in range(2 * n):
+            Dc[p, j] *= w[p]
+    cumulative_T_cols(Dc, run, w_elem, n_elem, D, tot)  # D[p, j] = dXt_j, D[p, n + j] = dWt_j
+    for i in range(n):
+        for j in range(n):
+            J_out[i, j] = 0.0
+    for p in range(npts):
+        cp, sp = m_scale * c[p], m_scale * s[p]
+        for j in range(n):
+            dg = cp * D[p, n + j] - sp * D[p, j] + psi[j, p] * P3[p]
+            for i in range(n):
+                J_out[i, j] += psi[i, p] * dg
+
+
+@njit(cache=True, fastmath=True)
+def cumulative_cols(f, run, w_elem, n_elem, out, base):
+    """:func:`cumulative` of every column of f (N, m) at once (the column innermost); ``base`` (m,) scratch."""
+    g = run.shape[0]
+    m = f.shape[1]
+    for r in range(m):
+        base[r] = 0.0
+    for e in range(n_elem):
+        o = e * g
+        for i in range(g):
+            for r in range(m):
+                out[o + i, r] = base[r]
+            for k in range(g):
+                rik = run[i, k]
+                for r in range(m):
+                    out[o + i, r] += rik * f[o + k, r]
+        for k in range(g):
+            wk = w_elem[k]
+            for r in range(m):
+                base[r] += wk * f[o + k, r]
+
+
+@njit(cache=True, fastmath=True)
+def cumulative_T_cols(y, run, w_elem, n_elem, out, later):
+    """:func:`cumulative_T` of every column of y (N, m) at once; ``later`` (m,) scratch."""
+    g = run.shape[0]
+    m = y.shape[1]
+    for r in range(m):
+        later[r] = 0.0
+    for e in range(n_elem - 1, -1, -1):
+        o = e * g
+        for k in range(g):
+            wk = w_elem[k]
+            for r in range(m):
+                out[o + k, r] = wk * later[r]
+            for i in range(g):
+                rik = run[i, k]
+                for r in range(m):
+                    out[o + k, r] += rik * y[o + i, r]
+        for i in range(g):
+            for r in range(m):
+                later[r] += y[o + i, r]
