@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_force, exact_tip
+from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_force, exact_tip_near
 
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
@@ -303,7 +303,8 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                     Mt[i, i] -= m_scale
                     ex_a[i] = (x[i] - v[i]) / dt
                 exact_force(qm, vm, ex_a, F_seq[step] * km.ex_length, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem,
-                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork)
+                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork,
+                            it > 0)
                 ex_new_j = False
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)
@@ -355,7 +356,7 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
             tmp_r[k] = acc
             finite = finite and np.isfinite(acc)
         if exact and finite:
-            tip = exact_tip(q_new, ex_psi, ex_w)
+            tip = exact_tip_near(q_new, ex_psi, ex_w, ex_work)
         if not finite:
             return NON_FINITE, step
         if abs(tip) > tip_bound:

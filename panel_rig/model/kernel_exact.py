@@ -154,13 +154,45 @@ def exact_eval(q, v, psi, w, run, w_elem, n_elem, m_scale, with_jv, M_out, h_out
                 M_out[j, i] += m_scale * acc
 
 
+#: |angle change| (rad) up to which :func:`_rotated` uses its series (truncation below 1e-22)
+NEAR_RAD = 0.1
+
+
+@njit(cache=True, fastmath=True)
+def _rotated(c, s, d, th):
+    """(cos, sin) of th = th0 + d from c = cos th0, s = sin th0: the angle-sum formulas with the Taylor series of
+    cos d and sin d (to d^12, d^13) when |d| <= NEAR_RAD, else cos th and sin th directly."""
+    if abs(d) > NEAR_RAD:
+        return np.cos(th), np.sin(th)
+    d2 = d * d
+    sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0 * (1.0 - d2 / 110.0 * (
+        1.0 - d2 / 156.0))))))
+    cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0 * (1.0 - d2 / 90.0 * (
+        1.0 - d2 / 132.0)))))
+    return c * cd - s * sd, s * cd + c * sd
+
+
+@njit(cache=True, fastmath=True)
+def exact_tip_near(q, psi, w, work):
+    """w(1)/L = int sin(theta) for q near the state of the last :func:`exact_force` call with ``work``."""
+    n, npts = psi.shape
+    c, s, TH = work[3], work[4], work[12]
+    acc = 0.0
+    for p in range(npts):
+        th = 0.0
+        for i in range(n):
+            th += q[i] * psi[i, p]
+        acc += w[p] * _rotated(c[p], s[p], th - TH[p], th)[1]
+    return acc
+
+
 #: rows of the scratch array of :func:`exact_force` (columns: the quadrature points)
-FORCE_WORK_ROWS = 12
+FORCE_WORK_ROWS = 13
 
 
 @njit(cache=True, fastmath=True)
 def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work,
-                jwork):
+                jwork, near):
     """F_out = m_p L^3 [M(q) a + h(q, v)] - f_tip_n B(1; q): the strip's inertia force at acceleration a, less
     the generalised dead tip force (f_tip_n = F L, N/m x m). If ``jac``, also J_out = dF/dx along the
     line q = q0 + cq x, v = v0 + cv x, a = a0 + ca x (the time step's dependence on its unknown x = q_dot^{n+1};
@@ -172,10 +204,11 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
     F_i = m sum_k psi_ik [-sin(theta_k) (R^T w x_dd)_k + cos(theta_k) (R^T w w_dd)_k] since A_i = R(-sin(theta) psi_i),
     B_i = R(cos(theta) psi_i). Four running integrals per evaluation whatever the number of modes (exact_eval:
     2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode, evaluated side by side. Scratch: ``work``
-    (FORCE_WORK_ROWS, N), ``jwork`` (3, N, 2 n)."""
+    (FORCE_WORK_ROWS, N), ``jwork`` (3, N, 2 n). ``near``: the angles are close to those of the previous call with
+    this ``work`` (a Newton iteration): cos and sin by rotating the previous ones (:func:`_rotated`)."""
     n, npts = psi.shape
     f, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
-    X, W, Xt, Wt, P1, P2, P3 = work[5], work[6], work[7], work[8], work[9], work[10], work[11]
+    X, W, Xt, Wt, P1, P2, P3, TH = work[5], work[6], work[7], work[8], work[9], work[10], work[11], work[12]
     for p in range(npts):
         th = 0.0
         b = 0.0
@@ -186,8 +219,12 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
             d += a[i] * psi[i, p]
         om[p] = b
         al[p] = d
-        c[p] = np.cos(th)
-        s[p] = np.sin(th)
+        if near:
+            c[p], s[p] = _rotated(c[p], s[p], th - TH[p], th)
+        else:
+            c[p] = np.cos(th)
+            s[p] = np.sin(th)
+        TH[p] = th
     for p in range(npts):
         f[p] = -s[p] * al[p] - c[p] * om[p] * om[p]  # xi
     cumulative(f, run, w_elem, n_elem, X)
