@@ -27,9 +27,12 @@ from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_force, exact_tip
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
-EX_RHO = 0.03  # exact: the structural Newton matrix is kept across iterations and steps until an update
-# contracts by less than this factor
-EX_PRED = 3  # exact: the Newton predictor extrapolates the last EX_PRED step accelerations (polynomial degree EX_PRED-1)
+# exact (elastica) structure, the step's Newton iteration (profile and measurements: docs/validation.md, section 5):
+EX_RHO = 0.03  # a fresh structural Newton matrix when an update contracts by less than this factor
+EX_KEEP, EX_WAIT = 1e-3, 64  # a step first tries the last step's matrix; if an iteration then contracts by less
+# than EX_KEEP, a fresh one is evaluated and the next EX_WAIT steps evaluate their own at the first iteration
+# (small motion: the matrix hardly changes and is kept; in a large LCO it changes by 1-5 % a step)
+EX_PRED = 3  # the Newton predictor extrapolates the last EX_PRED step accelerations (degree EX_PRED - 1)
 
 
 class KernelModel(NamedTuple):
@@ -217,6 +220,9 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     ex_acc = np.zeros((EX_PRED, q.shape[0]))
     ex_hist = 0
     ex_new_j = True  # exact: evaluate the structural Newton matrix at the next iteration (else keep the last one)
+    # exact: a step may try the previous step's matrix (ex_kept) unless a try failed within the last ex_wait steps
+    ex_kept = False
+    ex_wait = 1
     n = q.shape[0]
     r = xi.shape[0]
     h = 0.5 * dt
@@ -287,7 +293,8 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
             if ng > 0:
                 xi_part[i] += fg[i]
         big_prev = 0.0
-        ex_new_j = True
+        ex_kept = ex_wait == 0
+        ex_new_j = not ex_kept
         for i in range(n):
             x[i] = v[i]
             if exact:
@@ -333,8 +340,11 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                 x[i] -= res[i]
                 scale = max(scale, abs(x[i]))
                 big = max(big, abs(res[i]))
-            if exact and it > 0 and big > EX_RHO * big_prev:  # slow contraction: a fresh Newton matrix
-                ex_new_j = True
+            if exact and it > 0 and big > (EX_KEEP if ex_kept else EX_RHO) * big_prev:
+                ex_new_j = True  # slow contraction: a fresh Newton matrix (and no kept one for a while)
+                if ex_kept:
+                    ex_kept = False
+                    ex_wait = EX_WAIT + 1
             if big <= tol * scale:
                 break
             # exact: linear convergence with ratio r = big / big_prev leaves an error of about big r / (1 - r)
@@ -373,6 +383,7 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
         for j in range(ng):
             pg[j] = Pg_seq[step, j]
         ex_hist = min(ex_hist + 1, EX_PRED)
+        ex_wait = max(ex_wait - 1, 0)
         tip_out[step] = tip
     return OK, U_seq.shape[0]
 
