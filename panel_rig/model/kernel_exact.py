@@ -1,6 +1,10 @@
 """Compiled (numba) evaluation of the exact (elastica) structure at one state; see elastica.py for the equations.
 
-Per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
+The time step (kernel.march) uses :func:`exact_force`: the inertia force M(q) a + h(q, v) in d'Alembert form
+(four running integrals) and the step's exact Newton matrix. :func:`exact_eval` is the mass-matrix form of the
+same Lagrangian (M(q), h, dh/dv): the reference the tests hold exact_force to, and the linearisation's check.
+
+exact_eval, per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
 A_i = -int sin(theta) psi_i, B_i = int cos(theta) psi_i; then the mass matrix M(q) = m int (A A^T + B B^T),
 the convective inertia force h(q, v) = m int (A a_x + B a_w) (a_x = -int cos(theta) theta_dot^2,
 a_w = -int sin(theta) theta_dot^2), on request its velocity Jacobian dh/dv (for the Newton matrix of a step),
