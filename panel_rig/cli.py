@@ -41,15 +41,20 @@ def _jsonable(x: Any) -> Any:
 
 
 # ---- subcommands ------------------------------------------------------------------------------
+LINEAR_NOTE = ("linear analysis: every variant linearises at rest to the same model (the cubic terms vanish; exact: "
+               "its own M(0) by quadrature, = m_p L^3 I to ~2e-9)")
+
+
 def cmd_modes(args: argparse.Namespace) -> int:
+    from panel_rig.model.linearisation import natural_frequencies_hz
     from panel_rig.model.structure import build_structure
 
     cfg = _config(args)
     s = build_structure(cfg)
-    f = s.natural_frequencies_hz
-    payload = {"natural_frequencies_hz": f, "beta_L": s.beta,
+    f = natural_frequencies_hz(s, args.variant)
+    payload = {"natural_frequencies_hz": f, "beta_L": s.beta, "variant": args.variant,
                "modal_mass_kg_per_m": s.modal_mass_kg, "bending_stiffness_nm": cfg.bending_stiffness_nm}
-    _emit(args, payload, lambda: "mode  beta_L     f (Hz)\n" + "\n".join(
+    _emit(args, payload, lambda: f"variant {args.variant} ({LINEAR_NOTE})\nmode  beta_L     f (Hz)\n" + "\n".join(
         f"{i + 1:>4}  {b:7.4f}  {fi:9.3f}" for i, (b, fi) in enumerate(zip(s.beta, f))))
     return 0
 
@@ -57,9 +62,11 @@ def cmd_modes(args: argparse.Namespace) -> int:
 def cmd_flutter(args: argparse.Namespace) -> int:
     from panel_rig.analysis.flutter import eigenvalues, find_flutter
     from panel_rig.model.aeroelastic import AeroelasticModel
+    from panel_rig.model.linearisation import linear_mass_matrix_kg
+    from panel_rig.model.structure import build_structure
 
     cfg = _config(args)
-    model = AeroelasticModel(cfg)
+    model = AeroelasticModel(cfg, linear_mass_kg=linear_mass_matrix_kg(build_structure(cfg), args.variant))
     rom_modes = args.rom_modes if args.rom_modes is not None else cfg.rom_modes
     if rom_modes < 1:
         raise UsageError("--rom-modes must be >= 1")
@@ -73,7 +80,7 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     else:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}
-    payload.update(aero=args.aero, rom_modes=kw["rom_modes"], formulation=args.formulation)
+    payload.update(aero=args.aero, rom_modes=kw["rom_modes"], formulation=args.formulation, variant=args.variant)
     vg = None
     if args.vg:
         from panel_rig.analysis.vg import model_flutter_speed, plot_vg, vg_diagram
@@ -102,7 +109,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
         if fp is None:
             text = "no flutter found up to 60 m/s"
         else:
-            text = (f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
+            text = (f"variant            {args.variant} ({LINEAR_NOTE})\n"
+                    f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
                     f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
                     f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
         if vg is not None:
@@ -161,7 +169,7 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
         "law": design.law.as_dict(), "design_delay_s": design.loop.delay_s,
         "robust_delay_s": design.notes["robust_delay_s"], "sensor_noise_m": design.sensor_noise_m,
         "noise_force_rms_npm": noise_force_rms(design.law, args.rate_hz), "controller_rate_hz": args.rate_hz,
-        "aero": "rom", "rom_modes": rom_modes, "formulation": "continuous",
+        "aero": "rom", "rom_modes": rom_modes, "formulation": "continuous", "variant": args.variant,
     }
     if args.plot:
         from panel_rig.analysis.plots import plot_control_damping
@@ -605,12 +613,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="panel-rig", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
+    linear_variant_help = ("structural variant, linearised at rest (default %(default)s); " + LINEAR_NOTE
+                           + ", so every variant gives the same numbers")
     p = sub.add_parser("modes", help="cantilever natural frequencies")
     _common(p)
+    p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT, help=linear_variant_help)
     p.set_defaults(func=cmd_modes)
 
     p = sub.add_parser("flutter", help="linear flutter boundary (Fig. 3)")
     _common(p)
+    p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT, help=linear_variant_help)
     p.add_argument("--aero", choices=("full", "rom"), default="full")
     p.add_argument("--rom-modes", type=int, metavar="N", help="Ra, aerodynamic eigenmodes (default: aero.rom_modes)")
     p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",

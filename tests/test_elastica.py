@@ -8,7 +8,7 @@ from scipy.integrate import cumulative_simpson, simpson
 from panel_rig.config import load_config
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.elastica import exact_kinematics, static_tip_load, static_tip_moment
-from panel_rig.model.kernel_exact import exact_eval
+from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_eval, exact_force, exact_tip, exact_tip_near
 from panel_rig.model.stepper import Stepper
 from panel_rig.model.structure import mode_shapes
 
@@ -59,6 +59,47 @@ def test_linearisation_equals_the_cubic_models_matrices():
     np.testing.assert_allclose(Jv, 0.0, atol=1e-12)
     f = np.sqrt(np.linalg.eigvalsh(np.diag(s.modal_stiffness_npm) / (s.modal_mass_kg * M)))[::-1][::-1] / (2 * np.pi)
     np.testing.assert_allclose(np.sort(f), s.natural_frequencies_hz, rtol=1e-6)
+
+
+@pytest.mark.parametrize("n", [1, 3, 5])
+def test_step_force_and_newton_matrix_equal_the_lagrangian_terms(n):
+    """The kernel's step terms at a large-amplitude state (tip angles of radians): exact_force = M(q) a + h(q, v)
+    - F L B(1; q) of exact_eval (the mass-matrix form) to 1e-12; its Newton matrix along the midpoint step's line
+    (q, v, a move by dt/4, 1/2, 1/dt per unit x) equals central differences to 1e-7; a Newton iteration's rotated
+    cos/sin (near=True) and the step's tip from them equal the direct evaluation."""
+    kin = exact_kinematics(n)
+    quad = (kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem)
+    rng = np.random.default_rng(n)
+    q, v, a = rng.normal(size=n), 100.0 * rng.normal(size=n), 1e4 * rng.normal(size=n)
+    m, fl, dt = 0.02, 3.0, 1 / 2048
+    M, h, b, Jv = np.zeros((n, n)), np.zeros(n), np.zeros(n), np.zeros((n, n))
+    exact_eval(q, v, *quad, m, False, M, h, b, Jv, np.zeros((3 * n + 7, kin.psi.shape[1])))
+    ref = M @ a + h - fl * b
+    work, jwork = np.zeros((FORCE_WORK_ROWS, kin.psi.shape[1])), np.zeros((3, kin.psi.shape[1], 2 * n))
+    F, J = np.zeros(n), np.zeros((n, n))
+    line = (dt / 4, 0.5, 1 / dt)
+    exact_force(q, v, a, fl, *quad, m, True, *line, F, J, work, jwork, False)
+    np.testing.assert_allclose(F, ref, rtol=1e-12, atol=1e-12 * np.max(np.abs(ref)))
+    fd = np.zeros((n, n))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = 1e-3
+        Fp, Fm = np.zeros(n), np.zeros(n)
+        exact_force(q + line[0] * e, v + line[1] * e, a + line[2] * e, fl, *quad, m, False, 0, 0, 0, Fp, J * 0, work,
+                    jwork, False)
+        exact_force(q - line[0] * e, v - line[1] * e, a - line[2] * e, fl, *quad, m, False, 0, 0, 0, Fm, J * 0, work,
+                    jwork, False)
+        fd[:, j] = (Fp - Fm) / 2e-3
+    np.testing.assert_allclose(J, fd, rtol=0, atol=1e-7 * np.max(np.abs(fd)))
+    for dq in (1e-6, 0.03, 0.5):  # a Newton correction, a time step's change, a jump past the series' range
+        exact_force(q, v, a, fl, *quad, m, False, 0, 0, 0, F, J, work, jwork, False)
+        q2 = q + dq * rng.normal(size=n)
+        Fn, Fd = np.zeros(n), np.zeros(n)
+        assert exact_tip_near(q2, kin.psi, kin.quad.w, work) == pytest.approx(exact_tip(q2, kin.psi, kin.quad.w),
+                                                                              rel=1e-13, abs=1e-15)
+        exact_force(q2, v, a, fl, *quad, m, False, 0, 0, 0, Fn, J, work, jwork, True)
+        exact_force(q2, v, a, fl, *quad, m, False, 0, 0, 0, Fd, J, work, jwork, False)
+        np.testing.assert_allclose(Fn, Fd, rtol=1e-13, atol=1e-13 * np.max(np.abs(Fd)))
 
 
 def _step_map(st: Stepper, U: float, eps: float = 1e-7) -> np.ndarray:

@@ -111,6 +111,9 @@ class AeroelasticModel:
     """Everything the linear analysis and the stepper need, built once from a PanelConfig."""
 
     cfg: PanelConfig
+    #: the structural mass matrix of the linear analyses (kg/m, modal); None: m_p L^3 I. A variant's own
+    #: linearisation (model/linearisation.py); the stepper builds its matrices itself and does not read this
+    linear_mass_kg: np.ndarray | None = None
     structure: Structure = field(init=False)
     lattice: VortexLattice = field(init=False)
     coupling: Coupling = field(init=False)
@@ -138,12 +141,19 @@ class AeroelasticModel:
             self._continuous[n_modes] = continuous_aero(self.coupling, self.lattice, self.rom(n_modes))
         return self._continuous[n_modes]
 
+    @property
+    def structural_mass_kg(self) -> np.ndarray:
+        """Structural modal mass matrix of the linear analyses (``linear_mass_kg``, default m_p L^3 I)."""
+        if self.linear_mass_kg is not None:
+            return np.asarray(self.linear_mass_kg, dtype=float)
+        return self.structure.modal_mass_kg * np.eye(self.structure.n_modes)
+
     # ---- Eq. (24)/(25): discrete-time linear systems at dt = dx / U -------------------------------
     def _structure_rows(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """D2 and -D1 of Eq. (24): trapezoidal structure rows (velocity, displacement) for (v, q)."""
         s = self.structure
         n = s.n_modes
-        M, C, K = s.modal_mass_kg * np.eye(n), np.diag(s.modal_damping_kgps), np.diag(s.modal_stiffness_npm)
+        M, C, K = self.structural_mass_kg, np.diag(s.modal_damping_kgps), np.diag(s.modal_stiffness_npm)
         D2 = np.block([[M / dt + C / 2, K / 2], [-0.5 * np.eye(n), np.eye(n) / dt]])
         D1 = np.block([[-M / dt + C / 2, K / 2], [-0.5 * np.eye(n), -np.eye(n) / dt]])
         return D2, -D1
@@ -197,7 +207,7 @@ class AeroelasticModel:
         """Continuous-time linear system  Mc y_dot = Ac y,  y = (q, q_dot, xi)."""
         s, ca = self.structure, self.continuous(n_modes)
         n, r, U = s.n_modes, ca.n_aero, airspeed_mps
-        M = s.modal_mass_kg * np.eye(n) + ca.Ma
+        M = self.structural_mass_kg + ca.Ma
         Mc = np.eye(2 * n + r)
         Mc[n : 2 * n, n : 2 * n] = M
         Mc[2 * n :, n : 2 * n] = ca.Gv

@@ -22,11 +22,17 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from panel_rig.model.kernel_exact import exact_eval, exact_tip
+from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_force, exact_tip_near
 
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
+# exact (elastica) structure, the step's Newton iteration (profile and measurements: docs/validation.md, section 5):
+EX_RHO = 0.03  # a fresh structural Newton matrix when an update contracts by less than this factor
+EX_KEEP, EX_WAIT = 1e-3, 64  # a step first tries the last step's matrix; if an iteration then contracts by less
+# than EX_KEEP, a fresh one is evaluated and the next EX_WAIT steps evaluate their own at the first iteration
+# (small motion: the matrix hardly changes and is kept; in a large LCO it changes by 1-5 % a step)
+EX_PRED = 3  # the Newton predictor extrapolates the last EX_PRED step accelerations (degree EX_PRED - 1)
 
 
 class KernelModel(NamedTuple):
@@ -173,6 +179,20 @@ def _block_apply(blk_off, blk_len, a, b, vec, out, inverse, h):
 
 
 @njit(cache=True)
+def _extrapolate(a, m, i):
+    """Polynomial extrapolation one step ahead of the equally spaced sequence a[m-1, i], ..., a[0, i] (a[0] the
+    newest): the degree m-1 polynomial through them, sum_k (-1)^k C(m, k+1) a[k, i] (0 with no history)."""
+    acc = 0.0
+    binom = float(m)  # C(m, k + 1)
+    sign = 1.0
+    for k in range(m):
+        acc += sign * binom * a[k, i]
+        binom = binom * (m - k - 1) / (k + 2)
+        sign = -sign
+    return acc
+
+
+@njit(cache=True)
 def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     """Advance (q, v, xi) in place over len(U_seq) steps of the :class:`KernelModel` ``km``; tip w/L of each
     step into tip_out.
@@ -189,12 +209,20 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
     exact, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem = km.exact, km.ex_psi, km.ex_w, km.ex_run, km.ex_w_elem, km.ex_n_elem
-    ex_work = np.zeros((3 * q.shape[0] + 7, ex_psi.shape[1]))
-    ex_Jv = np.zeros((q.shape[0], q.shape[0]))
-    ex_h = np.zeros(q.shape[0])
-    ex_b = np.zeros(q.shape[0])
+    ex_work = np.zeros((FORCE_WORK_ROWS, ex_psi.shape[1]))
+    ex_jwork = np.zeros((3, ex_psi.shape[1], 2 * q.shape[0]))
+    ex_J = np.zeros((q.shape[0], q.shape[0]))
+    ex_F = np.zeros(q.shape[0])
+    ex_a = np.zeros(q.shape[0])
     q_new = np.zeros(q.shape[0])
-    ex_acc = np.zeros(q.shape[0])  # exact: last step's acceleration, the Newton predictor
+    # exact: the step-mean accelerations (x - v)/dt of the last EX_PRED steps of this march (row 0 the newest), the
+    # Newton predictor extrapolates them
+    ex_acc = np.zeros((EX_PRED, q.shape[0]))
+    ex_hist = 0
+    ex_new_j = True  # exact: evaluate the structural Newton matrix at the next iteration (else keep the last one)
+    # exact: a step may try the previous step's matrix (ex_kept) unless a try failed within the last ex_wait steps
+    ex_kept = False
+    ex_wait = 1
     n = q.shape[0]
     r = xi.shape[0]
     h = 0.5 * dt
@@ -280,24 +308,26 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
             if ng > 0:
                 xi_part[i] += fg[i]
         big_prev = 0.0
+        ex_kept = ex_wait == 0
+        ex_new_j = not ex_kept
         for i in range(n):
             x[i] = v[i]
             if exact:
-                x[i] += dt * ex_acc[i]
+                x[i] += dt * _extrapolate(ex_acc, ex_hist, i)
         for it in range(MAX_ITER):
             for i in range(n):
                 vm[i] = 0.5 * (x[i] + v[i])
                 qm[i] = q[i] + h * vm[i]
             Mt[:, :] = M0
-            if exact:  # M0 holds m I + Ma: swap m I for M(q*) at the midpoint; h(q*, v*) and B(1; q*);
-                # dh/dv for the Newton matrix at the first iteration of the step only
-                if it == 0:
-                    ex_Jv[:, :] = 0.0
+            if exact:  # M0 holds m I + Ma: the strip's m I goes into its inertia force M(q*) a + h(q*, v*)
+                # (midpoint, a = (x - v)/dt), with the dead tip force; its exact Newton matrix at the first iteration
                 for i in range(n):
                     Mt[i, i] -= m_scale
-                    ex_h[i] = 0.0
-                exact_eval(qm, vm, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem, m_scale, it == 0, Mt, ex_h, ex_b,
-                           ex_Jv, ex_work)
+                    ex_a[i] = (x[i] - v[i]) / dt
+                exact_force(qm, vm, ex_a, F_seq[step] * km.ex_length, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem,
+                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork,
+                            it > 0)
+                ex_new_j = False
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)
             for i in range(n):
@@ -307,17 +337,17 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                     if mass_mode == MASS_LITERAL:  # [D2 + dM] z^{t+1} + D1 z^t: dM multiplies the new state only
                         acc += (Mt[i, j] - M0[i, j]) * v[j] / dt
                 if exact:
-                    acc += ex_h[i] - F_seq[step] * km.ex_length * ex_b[i]
+                    acc += ex_F[i]
                 res[i] = acc
             if use_k or use_m:
                 _nl_force(qm, vm, K_nl, P_nl, k_scale, m_scale, use_k, use_m, res)
             for i in range(n):
                 for j in range(n):
                     J[i, j] = Mt[i, j] / dt + J_lin[i, j]
-            if exact:  # the velocity-quadratic inertia dominates the Newton error: dh/dx = (1/2) dh/dv
+            if exact:
                 for i in range(n):
                     for j in range(n):
-                        J[i, j] += 0.5 * ex_Jv[i, j]
+                        J[i, j] += ex_J[i, j]
             _solve_inplace(J, res)
             scale = 1e-12
             big = 0.0
@@ -325,6 +355,11 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                 x[i] -= res[i]
                 scale = max(scale, abs(x[i]))
                 big = max(big, abs(res[i]))
+            if exact and it > 0 and big > (EX_KEEP if ex_kept else EX_RHO) * big_prev:
+                ex_new_j = True  # slow contraction: a fresh Newton matrix (and no kept one for a while)
+                if ex_kept:
+                    ex_kept = False
+                    ex_wait = EX_WAIT + 1
             if big <= tol * scale:
                 break
             # exact: linear convergence with ratio r = big / big_prev leaves an error of about big r / (1 - r)
@@ -346,7 +381,7 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
             tmp_r[k] = acc
             finite = finite and np.isfinite(acc)
         if exact and finite:
-            tip = exact_tip(q_new, ex_psi, ex_w)
+            tip = exact_tip_near(q_new, ex_psi, ex_w, ex_work)
         if not finite:
             return NON_FINITE, step
         if abs(tip) > tip_bound:
@@ -354,12 +389,16 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
         for j in range(n):
             q[j] += h * (x[j] + v[j])
             if exact:
-                ex_acc[j] = (x[j] - v[j]) / dt
+                for k in range(EX_PRED - 1, 0, -1):
+                    ex_acc[k, j] = ex_acc[k - 1, j]
+                ex_acc[0, j] = (x[j] - v[j]) / dt
             v[j] = x[j]
         for k in range(r):
             xi[k] = tmp_r[k]
         for j in range(ng):
             pg[j] = Pg_seq[step, j]
+        ex_hist = min(ex_hist + 1, EX_PRED)
+        ex_wait = max(ex_wait - 1, 0)
         tip_out[step] = tip
     return OK, U_seq.shape[0]
 

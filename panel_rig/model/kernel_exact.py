@@ -1,6 +1,10 @@
 """Compiled (numba) evaluation of the exact (elastica) structure at one state; see elastica.py for the equations.
 
-Per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
+The time step (kernel.march) uses :func:`exact_force`: the inertia force M(q) a + h(q, v) in d'Alembert form
+(four running integrals) and the step's exact Newton matrix. :func:`exact_eval` is the mass-matrix form of the
+same Lagrangian (M(q), h, dh/dv): the reference the tests hold exact_force to, and the linearisation's check.
+
+exact_eval, per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
 A_i = -int sin(theta) psi_i, B_i = int cos(theta) psi_i; then the mass matrix M(q) = m int (A A^T + B B^T),
 the convective inertia force h(q, v) = m int (A a_x + B a_w) (a_x = -int cos(theta) theta_dot^2,
 a_w = -int sin(theta) theta_dot^2), on request its velocity Jacobian dh/dv (for the Newton matrix of a step),
@@ -152,3 +156,170 @@ def exact_eval(q, v, psi, w, run, w_elem, n_elem, m_scale, with_jv, M_out, h_out
             M_out[i, j] += m_scale * acc
             if j != i:
                 M_out[j, i] += m_scale * acc
+
+
+#: |angle change| (rad) up to which :func:`_rotated` uses its series (truncation below 1e-22)
+NEAR_RAD = 0.1
+
+
+@njit(cache=True, fastmath=True)
+def _rotated(c, s, d, th):
+    """(cos, sin) of th = th0 + d from c = cos th0, s = sin th0: the angle-sum formulas with the Taylor series of
+    cos d and sin d (to d^12, d^13) when |d| <= NEAR_RAD, else cos th and sin th directly."""
+    if abs(d) > NEAR_RAD:
+        return np.cos(th), np.sin(th)
+    d2 = d * d
+    sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0 * (1.0 - d2 / 110.0 * (
+        1.0 - d2 / 156.0))))))
+    cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0 * (1.0 - d2 / 90.0 * (
+        1.0 - d2 / 132.0)))))
+    return c * cd - s * sd, s * cd + c * sd
+
+
+@njit(cache=True, fastmath=True)
+def exact_tip_near(q, psi, w, work):
+    """w(1)/L = int sin(theta) for q near the state of the last :func:`exact_force` call with ``work``."""
+    n, npts = psi.shape
+    c, s, TH = work[3], work[4], work[12]
+    acc = 0.0
+    for p in range(npts):
+        th = 0.0
+        for i in range(n):
+            th += q[i] * psi[i, p]
+        acc += w[p] * _rotated(c[p], s[p], th - TH[p], th)[1]
+    return acc
+
+
+#: rows of the scratch array of :func:`exact_force` (columns: the quadrature points)
+FORCE_WORK_ROWS = 13
+
+
+@njit(cache=True, fastmath=True)
+def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work,
+                jwork, near):
+    """F_out = m_p L^3 [M(q) a + h(q, v)] - f_tip_n B(1; q): the strip's inertia force at acceleration a, less
+    the generalised dead tip force (f_tip_n = F L, N/m x m). If ``jac``, also J_out = dF/dx along the
+    line q = q0 + cq x, v = v0 + cv x, a = a0 + ca x (the time step's dependence on its unknown x = q_dot^{n+1};
+    midpoint rule: cq = dt/4, cv = 1/2, ca = 1/dt), i.e. the exact Newton matrix of the structural terms.
+
+    The same discrete Lagrangian as :func:`exact_eval`, summed the other way round (d'Alembert along the
+    strip): the point accelerations x_dd = R xi, w_dd = R eta with xi = -sin(theta) alpha - cos(theta) omega^2,
+    eta = cos(theta) alpha - sin(theta) omega^2 (alpha = a . psi, omega = v . psi, R the running integral), and
+    F_i = m sum_k psi_ik [-sin(theta_k) (R^T w x_dd)_k + cos(theta_k) (R^T w w_dd)_k] since A_i = R(-sin(theta) psi_i),
+    B_i = R(cos(theta) psi_i). Four running integrals per evaluation whatever the number of modes (exact_eval:
+    2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode, evaluated side by side. Scratch: ``work``
+    (FORCE_WORK_ROWS, N), ``jwork`` (3, N, 2 n). ``near``: the angles are close to those of the previous call with
+    this ``work`` (a Newton iteration): cos and sin by rotating the previous ones (:func:`_rotated`)."""
+    n, npts = psi.shape
+    f, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
+    X, W, Xt, Wt, P1, P2, P3, TH = work[5], work[6], work[7], work[8], work[9], work[10], work[11], work[12]
+    for p in range(npts):
+        th = 0.0
+        b = 0.0
+        d = 0.0
+        for i in range(n):
+            th += q[i] * psi[i, p]
+            b += v[i] * psi[i, p]
+            d += a[i] * psi[i, p]
+        om[p] = b
+        al[p] = d
+        if near:
+            c[p], s[p] = _rotated(c[p], s[p], th - TH[p], th)
+        else:
+            c[p] = np.cos(th)
+            s[p] = np.sin(th)
+        TH[p] = th
+    for p in range(npts):
+        f[p] = -s[p] * al[p] - c[p] * om[p] * om[p]  # xi
+    cumulative(f, run, w_elem, n_elem, X)
+    if jac:  # d xi / dx_j = psi_j P1, d eta / dx_j = psi_j P2 (theta, omega, alpha move by cq, cv, ca psi_j)
+        for p in range(npts):
+            P2[p] = cq * f[p] + ca * c[p] - 2.0 * cv * s[p] * om[p]
+    for p in range(npts):
+        f[p] = c[p] * al[p] - s[p] * om[p] * om[p]  # eta
+    cumulative(f, run, w_elem, n_elem, W)
+    if jac:
+        for p in range(npts):
+            P1[p] = -cq * f[p] - ca * s[p] - 2.0 * cv * c[p] * om[p]
+    for p in range(npts):
+        f[p] = w[p] * X[p]
+    cumulative_T(f, run, w_elem, n_elem, Xt)
+    for p in range(npts):
+        f[p] = w[p] * W[p]
+    cumulative_T(f, run, w_elem, n_elem, Wt)
+    for p in range(npts):
+        al[p] = m_scale * (c[p] * Wt[p] - s[p] * Xt[p]) - f_tip_n * w[p] * c[p]  # G_p: alpha is no longer needed
+    for i in range(n):
+        acc = 0.0
+        for p in range(npts):
+            acc += psi[i, p] * al[p]
+        F_out[i] = acc
+    if not jac:
+        return
+    for p in range(npts):  # d G_p = m (c dWt - s dXt) + psi_j P3 (the rotation of theta at p itself)
+        P3[p] = cq * (f_tip_n * w[p] * s[p] - m_scale * (c[p] * Xt[p] + s[p] * Wt[p]))
+    # all 2n directions at once, the direction innermost (independent sums, not one chain per direction):
+    # columns j < n: d xi / dx_j, columns n + j: d eta / dx_j
+    D, Dc, tot = jwork[0], jwork[1], jwork[2, 0]
+    for p in range(npts):
+        for j in range(n):
+            D[p, j] = psi[j, p] * P1[p]
+            D[p, n + j] = psi[j, p] * P2[p]
+    cumulative_cols(D, run, w_elem, n_elem, Dc, tot)
+    for p in range(npts):
+        for j in range(2 * n):
+            Dc[p, j] *= w[p]
+    cumulative_T_cols(Dc, run, w_elem, n_elem, D, tot)  # D[p, j] = dXt_j, D[p, n + j] = dWt_j
+    for i in range(n):
+        for j in range(n):
+            J_out[i, j] = 0.0
+    for p in range(npts):
+        cp, sp = m_scale * c[p], m_scale * s[p]
+        for j in range(n):
+            dg = cp * D[p, n + j] - sp * D[p, j] + psi[j, p] * P3[p]
+            for i in range(n):
+                J_out[i, j] += psi[i, p] * dg
+
+
+@njit(cache=True, fastmath=True)
+def cumulative_cols(f, run, w_elem, n_elem, out, base):
+    """:func:`cumulative` of every column of f (N, m) at once (the column innermost); ``base`` (m,) scratch."""
+    g = run.shape[0]
+    m = f.shape[1]
+    for r in range(m):
+        base[r] = 0.0
+    for e in range(n_elem):
+        o = e * g
+        for i in range(g):
+            for r in range(m):
+                out[o + i, r] = base[r]
+            for k in range(g):
+                rik = run[i, k]
+                for r in range(m):
+                    out[o + i, r] += rik * f[o + k, r]
+        for k in range(g):
+            wk = w_elem[k]
+            for r in range(m):
+                base[r] += wk * f[o + k, r]
+
+
+@njit(cache=True, fastmath=True)
+def cumulative_T_cols(y, run, w_elem, n_elem, out, later):
+    """:func:`cumulative_T` of every column of y (N, m) at once; ``later`` (m,) scratch."""
+    g = run.shape[0]
+    m = y.shape[1]
+    for r in range(m):
+        later[r] = 0.0
+    for e in range(n_elem - 1, -1, -1):
+        o = e * g
+        for k in range(g):
+            wk = w_elem[k]
+            for r in range(m):
+                out[o + k, r] = wk * later[r]
+            for i in range(g):
+                rik = run[i, k]
+                for r in range(m):
+                    out[o + k, r] += rik * y[o + i, r]
+        for i in range(g):
+            for r in range(m):
+                later[r] += y[o + i, r]
