@@ -413,13 +413,15 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if args.dwell is not None and not args.dwell >= 20.0:
         raise UsageError("--dwell must be >= 20 s (simulated)")
+    if args.max_points is not None and args.max_points < 1:
+        raise UsageError("--max-points must be >= 1")
     if args.settle is not None and not args.settle >= 0.0:
         raise UsageError("--settle must be >= 0 s (simulated)")
     try:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
                                dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
-                               domain_id=args.domain_id)
+                               domain_id=args.domain_id, max_points=args.max_points)
     except RuntimeError as exc:  # the live node failed to start or stopped answering (its log is named)
         print(f"panel-rig flutter-test: {exc}", file=sys.stderr)
         return 1
@@ -739,6 +741,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated seconds of response identified per test point (default 200)")
     p.add_argument("--settle", type=float, metavar="S",
                    help="simulated seconds of run-in dropped after each airspeed step (default 5)")
+    p.add_argument("--max-points", type=int, metavar="N", help="stop after N test points (default 12)")
     p.add_argument("--in-process", action="store_true",
                    help="drive an in-process Rig instead of the live node (no ROS; the unit tests' path)")
     p.add_argument("--domain-id", type=int, metavar="ID",

@@ -73,19 +73,21 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
                      bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                      params: dict[str, Any] | None = None, dwell_s: float | None = None,
                      settle_s: float | None = None, in_process: bool = False,
-                     domain_id: int | None = None) -> dict[str, Any]:
+                     domain_id: int | None = None, max_points: int | None = None) -> dict[str, Any]:
     """Run the procedure (live node by default, see the module docstring); returns the JSON payload."""
     if in_process:
-        return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s)
+        return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s,
+                              max_points)
     from panel_rig.ros.flutter_live import run_live
 
-    return run_live(cfg, variant, margin, start_mps, bag_dir, plot, rerun, dwell_s, settle_s, domain_id)
+    return run_live(cfg, variant, margin, start_mps, bag_dir, plot, rerun, dwell_s, settle_s, domain_id,
+                    max_points=max_points)
 
 
 def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                    bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                    params: dict[str, Any] | None = None, dwell_s: float | None = None,
-                   settle_s: float | None = None) -> dict[str, Any]:
+                   settle_s: float | None = None, max_points: int | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
     from panel_rig.analysis.vg import model_flutter_speed
@@ -102,7 +104,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     if found is None:
         raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
     uf, mode = found
-    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s)) if v is not None}
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
+               if v is not None}
     settings = default_plan(uf, margin, start_mps, **changes)
     limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)

@@ -48,7 +48,7 @@ def private_domain_id() -> int:
 def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
              bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
              dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
-             startup_s: float = 180.0) -> dict[str, Any]:
+             max_points: int | None = None, startup_s: float = 180.0) -> dict[str, Any]:
     """The procedure on a freshly started live node; returns the JSON payload (the issue's keys, plus
     ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison)."""
     t0 = time.monotonic()
@@ -67,7 +67,8 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     if found is None:
         raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
     uf, mode = found
-    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s)) if v is not None}
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
+               if v is not None}
     settings = default_plan(uf, margin, start_mps, **changes)
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
                           run_dir if bag_dir is not None else None, rerun)

@@ -120,6 +120,8 @@ class RigNode(Node):
         self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
                                                                         self.pub_shape, self.pub_diag, self.pub_truth)}
+        if self._flutter_monitor is not None:  # created with the sinks: recorded under its full name too
+            self._full[self.pub_flutter] = self._topic_name(self.pub_flutter.topic_name)
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
