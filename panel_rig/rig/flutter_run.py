@@ -3,6 +3,7 @@ turbulence, sensor and safety as the node's rig. Used by the unit tests and as t
 
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
@@ -102,6 +103,7 @@ class FlutterMonitorSink:
         self.points: list[TestPoint] = []
         self.published = 0  # results published (points and flutter reports)
         self.waiting = False
+        self.last_wall_s = 0.0
         self.plateau_start_s = 0.0
         self._u: float | None = None
         self._t: list[np.ndarray] = []
@@ -163,12 +165,15 @@ class FlutterMonitorSink:
         if self.points and self._u <= self.points[-1].airspeed_mps:
             return  # the monitor follows the ascent only
         lo, hi = self.window_s
+        w0 = time.monotonic()
         yy, dt = resample_window(t, y, lo, min(hi, time_s))
         pt = identify_point(yy, dt, self._u, self.bands(self._u), ssi=self.settings.ssi)
         self.points.append(pt)
+        d = decide(self.points, self.settings)
+        self.last_wall_s = time.monotonic() - w0  # identification + prediction, wall s (profiling)
         self.waiting = True
         self.published += 1
-        self.publish(time_s, pt, decide(self.points, self.settings), fluttered=False)
+        self.publish(time_s, pt, d, fluttered=False)
 
     def close(self) -> None:
         pass

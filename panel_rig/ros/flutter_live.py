@@ -75,6 +75,9 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     params_file = run_dir / "node_params.yaml"
     params_file.write_text(yaml.safe_dump({"panel_rig": {"ros__parameters": prm}}))
     env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    # the monitor's SVDs are <= ~160 x 160: BLAS threads only contend (measured 3-7x slower per point with the
+    # default threads on the 2 shared cores, docs/validation.md section 10); the user's own setting wins
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params", str(params_file),
            "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     log_path = run_dir / "node.log"
@@ -99,7 +102,8 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
                test_wall_s=timing["test_s"], node_rtf=sim / timing["test_s"] if timing["test_s"] > 0 else None,
                node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
                node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
-               monitor_times_s=[float(r["sim_time_s"]) for r in results])
+               monitor_times_s=[float(r["sim_time_s"]) for r in results],
+               identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
     if plot is not None:
         from panel_rig.flutter_cli import plot_flutter_test
 

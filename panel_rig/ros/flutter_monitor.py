@@ -6,7 +6,8 @@ numbers, "nan" when unknown; floats written with ``repr`` so a client rebuilds t
 
 - the plateau: ``point_index`` (results published so far, from 1), ``airspeed_mps`` (the commanded set-point),
   ``plateau_start_s`` (simulated time of the command), ``settle_s``, ``dwell_s`` (the identified window, simulated
-  seconds), ``fluttered`` (``true``/``false``), ``sim_time_s``;
+  seconds), ``fluttered`` (``true``/``false``), ``sim_time_s``, ``identify_wall_s`` (wall seconds the node spent
+  identifying and predicting: simulated time waits meanwhile);
 - the flutter mode: ``frequency_hz``, ``frequency_ci_low_hz``/``_high_hz``, ``damping_ratio``,
   ``damping_ci_low``/``_high``, and the estimate itself: ``frequency_se_hz``, ``damping_se``, ``dof``,
   ``estimator``, ``n_stable``; the first mode likewise with the prefix ``first_``; ``method`` (ssi-cov,
@@ -54,7 +55,7 @@ def monitor_values(point: TestPoint, decision: Decision, required_margin: float,
     p = decision.prediction
     nan = math.nan
     plat = {"point_index": -1, "plateau_start_s": nan, "settle_s": nan, "dwell_s": nan, "sim_time_s": nan,
-            "flutter_band_low_hz": nan, "flutter_band_high_hz": nan, **(plateau or {})}
+            "flutter_band_low_hz": nan, "flutter_band_high_hz": nan, "identify_wall_s": nan, **(plateau or {})}
     return {
         "airspeed_mps": point.airspeed_mps,
         **_estimate_values(point.flutter, ""),

@@ -342,7 +342,7 @@ class RigNode(Node):
         band = mon.bands(point.airspeed_mps)[1]
         plateau = {"point_index": mon.published, "plateau_start_s": mon.plateau_start_s, "settle_s": mon.settle_s,
                    "dwell_s": mon.dwell_s, "sim_time_s": time_s, "flutter_band_low_hz": band[0],
-                   "flutter_band_high_hz": band[1]}
+                   "flutter_band_high_hz": band[1], "identify_wall_s": mon.last_wall_s}
         stamp = self._stamp_ns(time_s)
         self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered,
                                                     plateau=plateau), stamp, qos="reliable")
