@@ -84,9 +84,10 @@ class FlutterMonitorSink:
     ``min_dwell_s`` was kept) identifies it (``identify_point``, bands from the model), updates the predictors
     (``decide``) and calls ``publish(time_s, point, decision, fluttered=False)``. If the measured tip exceeds
     FLUTTER_TIP_FRACTION x L or the rig aborts during the plateau (run-in included), it publishes at once with
-    ``fluttered=True`` (point without modes). ``waiting`` is true from a published result to the next command
-    (the node's fast-mode hold uses it). Plateaus at U <= 0 and descents are not test points. The identification
-    runs in the caller's thread (seconds per point: meant for fast mode, where simulated time waits for it)."""
+    ``fluttered=True`` (point without modes). ``waiting`` is true before the first command and from a published
+    result to the next command (the node's fast-mode hold uses it: a run is then reproducible from its seed).
+    Plateaus at U <= 0 and descents are not test points. The identification runs in the caller's thread (seconds
+    per point: meant for fast mode, where simulated time waits for it)."""
 
     def __init__(self, cfg: PanelConfig, model, publish: Callable[..., None], margin: float = 0.1,
                  settle_s: float = 5.0, min_dwell_s: float = 20.0, dwell_s: float = 200.0) -> None:
@@ -102,7 +103,7 @@ class FlutterMonitorSink:
         self.panel_length_m = cfg.panel_length_m
         self.points: list[TestPoint] = []
         self.published = 0  # results published (points and flutter reports)
-        self.waiting = False
+        self.waiting = True  # for the first command (a node holding for its client starts the clock with it)
         self.last_wall_s = 0.0
         self.plateau_start_s = 0.0
         self._u: float | None = None

@@ -425,9 +425,10 @@ class RigNode(Node):
             executor.spin_once(timeout_sec=0.002)
 
     def flutter_holding(self) -> bool:
-        """Fast mode with ``flutter_test.hold``: true from a published test point until the next airspeed command
-        (the flutter-test client decides meanwhile; simulated time waits, so results do not depend on how fast the
-        client is). A client silent for HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
+        """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
+        point until the next one (the flutter-test client connects, then decides; simulated time waits, so results
+        do not depend on how fast the client is, and a run is reproducible from its seed). A client silent for
+        HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
         if not (self._flutter_hold and self._flutter_monitor.waiting):
             self._hold_since = None
             return False
