@@ -30,7 +30,12 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
     flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
     flat = {k: (list(v) if isinstance(v, tuple) else v) for k, v in flat.items()}
     default_max = NODE_PARAMS["safety.max_airspeed_mps"].default
+    # readings every whole number of physics steps nearest the default 500 Hz (4 steps of 1/2048 s: 512 Hz), so
+    # the monitor identifies on a regular record as the in-process driver does; at 500 Hz the intervals alternate
+    # between 4 and 5 steps and each window must be interpolated onto a grid
+    steps = max(1, round(1.0 / (NODE_PARAMS["publish_rate_hz"].default * cfg.dt_s)))
     return {**flat, "fast": True, "model.variant": variant, "flutter_monitor": True,
+            "publish_rate_hz": 1.0 / (steps * cfg.dt_s),
             "flutter_test.settle_s": float(settle_s), "flutter_test.dwell_s": float(dwell_s),
             "flutter_test.margin": float(margin), "flutter_test.hold": True,
             # the tunnel's limit must not stop the approach of a stiffer panel's boundary
