@@ -413,6 +413,8 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if args.dwell is not None and not args.dwell >= 20.0:
         raise UsageError("--dwell must be >= 20 s (simulated)")
+    if args.start_mps is not None and not args.start_mps > 0.0:
+        raise UsageError("--start-mps must be > 0")
     if args.max_points is not None and args.max_points < 1:
         raise UsageError("--max-points must be >= 1")
     if args.settle is not None and not args.settle >= 0.0:

@@ -105,3 +105,14 @@ def test_live_flutter_test_reports_a_dead_node_in_one_line(tmp_path, capsys, mon
                  str(tmp_path / "vg.png")])
     err = capsys.readouterr().err
     assert code == 1 and "node log:" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys):
+    """A first point above the tunnel's limit is refused by the node: the command says so in one line (exit 1)
+    instead of waiting for a test point that will never come."""
+    pytest.importorskip("rclpy")
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")])
+    err = capsys.readouterr().err
+    assert code == 1 and "rejected" in err and "exceeds the limit" in err and len(err.strip().splitlines()) == 1

@@ -85,6 +85,7 @@ class FlutterTestClient(Node):
         """Command ``airspeed_mps`` and wait for the monitor's result for it: (point, fluttered, raw values). The
         dwell is the node's, in simulated time; this waits in wall time for however long that takes."""
         seen = len(self.results)
+        rejected = self._rejected()
         self.command(airspeed_mps)
         self._last_heard = time.monotonic()
         while True:
@@ -93,7 +94,16 @@ class FlutterTestClient(Node):
                     fluttered = values.get("fluttered") == "true"
                     return (None if fluttered else point_from_values(values)), fluttered, values
             seen = len(self.results)
+            if self._rejected() > rejected:  # the node refused the set-point: no test point will come
+                raise RigGone(f"airspeed {airspeed_mps:g} m/s rejected by the rig: "
+                              f"{self.diagnostics.get('last_rejection', '?')}")
             self._spin(executor, 0.05)
+
+    def _rejected(self) -> int:
+        try:
+            return int(self.diagnostics.get("rejected_commands", "0"))
+        except ValueError:
+            return 0
 
     def settle_commands(self, executor: Any, wall_s: float = 0.3) -> None:
         """Serve callbacks for a moment so a last command goes out before the client stops."""
