@@ -419,9 +419,22 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if not 0 < args.margin < 1:
         raise UsageError("--margin must be in (0, 1)")
     cfg = _config(args)
-    out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
-                           params={"set": " ".join(args.set or ()), "params": args.params or ""},
-                           dwell_s=args.dwell)
+    if args.dwell is not None and not args.dwell >= 20.0:
+        raise UsageError("--dwell must be >= 20 s (simulated)")
+    if args.start_mps is not None and not args.start_mps > 0.0:
+        raise UsageError("--start-mps must be > 0")
+    if args.max_points is not None and args.max_points < 1:
+        raise UsageError("--max-points must be >= 1")
+    if args.settle is not None and not args.settle >= 0.0:
+        raise UsageError("--settle must be >= 0 s (simulated)")
+    try:
+        out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
+                               params={"set": " ".join(args.set or ()), "params": args.params or ""},
+                               dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
+                               domain_id=args.domain_id, max_points=args.max_points)
+    except RuntimeError as exc:  # the live node failed to start or stopped answering (its log is named)
+        print(f"panel-rig flutter-test: {exc}", file=sys.stderr)
+        return 1
     _emit(args, out, lambda: format_flutter_test(out))
     return 1 if out["fluttered"] else 0
 
@@ -483,8 +496,11 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
         return None
     uf, mode = found
     force = rec.force_npm if np.any(rec.force_npm) else None
+    # a node run with the flutter monitor recorded its test-point window: replay exactly that window
+    window = {k: float(rec.parameters[f"flutter_test.{k}"]) for k in ("settle_s", "dwell_s")
+              if isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
-                           rec.panel_length_m, force)
+                           rec.panel_length_m, force, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
@@ -492,10 +508,17 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
         if d.prediction is not None:
-            out.update(predicted_flutter_speed_mps=d.prediction.speed_mps,
-                       predicted_flutter_speed_ci_mps=list(d.prediction.ci_mps), prediction_method=d.prediction.method,
+            pd = d.prediction.as_dict()  # open (infinite) bounds as null
+            out.update(predicted_flutter_speed_mps=pd["predicted_flutter_speed_mps"],
+                       predicted_flutter_speed_ci_mps=pd["predicted_flutter_speed_ci_mps"],
+                       prediction_method=d.prediction.method,
                        margin=d.prediction.margin(points[-1].airspeed_mps))
     return out
+
+
+def _bound(x: float | None) -> str:
+    """An interval bound for a table: ``open`` when there is none (the bootstrap draws did not all cross)."""
+    return "open" if x is None else f"{x:.2f}"
 
 
 def _write_rerun(rec: Any, path: Any) -> str:
@@ -547,7 +570,7 @@ def format_table(result: dict[str, Any]) -> str:
                             f"{p['damping_ratio']:.4f} [{ci[0]:.4f}, {ci[1]:.4f}]") + f"  {p['method']}")
         ci = ft["predicted_flutter_speed_ci_mps"]
         lines.append(f"   predicted U_f {num(ft['predicted_flutter_speed_mps'])} m/s"
-                     + ("" if ci is None else f" (95 % {ci[0]:.2f} .. {ci[1]:.2f})")
+                     + ("" if ci is None else f" (95 % {_bound(ci[0])} .. {_bound(ci[1])})")
                      + f" [{ft['prediction_method']}]; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
     for path in result.get("plots") or []:
         lines.append(f"plot: {path}")
@@ -728,7 +751,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", choices=tuple(VARIANTS), default="full")
     p.add_argument("--start-mps", type=float, metavar="U0", help="first test point (default: half the model's U_f)")
     p.add_argument("--margin", type=float, default=0.1, metavar="M", help="required speed margin (default 0.1)")
-    p.add_argument("--dwell", type=float, metavar="S", help="seconds of response per test point (default 200)")
+    p.add_argument("--dwell", type=float, metavar="S",
+                   help="simulated seconds of response identified per test point (default 200)")
+    p.add_argument("--settle", type=float, metavar="S",
+                   help="simulated seconds of run-in dropped after each airspeed step (default 5)")
+    p.add_argument("--max-points", type=int, metavar="N", help="stop after N test points (default 12)")
+    p.add_argument("--in-process", action="store_true",
+                   help="drive an in-process Rig instead of the live node (no ROS; the unit tests' path)")
+    p.add_argument("--domain-id", type=int, metavar="ID",
+                   help="ROS_DOMAIN_ID of the private node + client pair (default: a free-looking random one)")
     p.add_argument("--bag-dir", default="bags", help="directory for the recording (default bags)")
     p.add_argument("--plot", default="out/flutter_test/vg.png", metavar="FILE.png",
                    help="V-g plot with the extrapolation (default out/flutter_test/vg.png)")

@@ -1,13 +1,19 @@
-"""``panel-rig flutter-test``: the automatic flutter-clearance procedure on the rig with turbulence on.
+"""``panel-rig flutter-test``: the automatic flutter-clearance procedure on the live rig node, turbulence on.
 
-The node-equivalent Rig (the same Stepper, turbulence, sensor and safety the rig node builds, marched in blocks as
-the node's fast mode does) runs in this process: driving the live node over topics was measured at a real-time
-factor of ~6 with ~40 % of the best-effort 500 Hz tip samples lost by a Python subscriber on this 2-core machine
-(docs/validation.md), i.e. > 3 min for a test and an irregular record; in-process the whole test takes < 1 min.
-What the node would publish is recorded to a rosbag2 MCAP with the node's topic names and encoding
-(``/rig/tip_displacement`` = the sensor's reading, ``/rig/tip_displacement/truth``, ``/rig/airspeed``,
-``/rig/airspeed_cmd``) plus the monitor (``/rig/flutter_monitor``, one
-``diagnostic_msgs/DiagnosticArray`` per test point), so ``panel-rig analyze BAG`` replays it.
+Default (live): the command starts the rig node (``python -m panel_rig.ros.node --fast``, the program a user
+runs) as a subprocess in a private ROS domain (a random ``ROS_DOMAIN_ID``, discovery limited to this host) with
+the run's physics, recording a bag, the flutter monitor on and its hold engaged, and drives it over topics with
+:class:`panel_rig.ros.flutter_client.FlutterTestClient`: airspeed set-points on ``/rig/airspeed_cmd``, one
+result per test point from ``/rig/flutter_monitor``. The node's monitor identifies each dwell on the full-rate
+measured tip in-process (simulated time, so the result does not depend on the machine's speed); the client
+rebuilds the points, predicts and decides. A subprocess rather than a node in this process: it is the node
+exactly as deployed (its own ``main``, signals, recording), and the model's stepping and the client's decisions
+run on two cores instead of sharing one interpreter lock.
+
+``--in-process``: the node-equivalent Rig (the same Stepper, turbulence, sensor and safety the rig node builds,
+marched in blocks as fast mode does) in this process, recorded to a bag with the node's topic names
+(``/rig/tip_displacement``, ``/rig/tip_displacement/truth``, ``/rig/airspeed``, ``/rig/airspeed_cmd``,
+``/rig/flutter_monitor``); the unit tests' path.
 """
 
 from __future__ import annotations
@@ -65,8 +71,24 @@ class BagSink:
 
 def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                      bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
-                     params: dict[str, Any] | None = None, dwell_s: float | None = None) -> dict[str, Any]:
-    """Run the procedure; returns the JSON payload (see the CLI)."""
+                     params: dict[str, Any] | None = None, dwell_s: float | None = None,
+                     settle_s: float | None = None, in_process: bool = False,
+                     domain_id: int | None = None, max_points: int | None = None) -> dict[str, Any]:
+    """Run the procedure (live node by default, see the module docstring); returns the JSON payload."""
+    if in_process:
+        return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s,
+                              max_points)
+    from panel_rig.ros.flutter_live import run_live
+
+    return run_live(cfg, variant, margin, start_mps, bag_dir, plot, rerun, dwell_s, settle_s, domain_id,
+                    max_points=max_points)
+
+
+def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
+                   bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
+                   params: dict[str, Any] | None = None, dwell_s: float | None = None,
+                   settle_s: float | None = None, max_points: int | None = None) -> dict[str, Any]:
+    """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
     from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.model.stepper import Stepper
@@ -82,7 +104,8 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
     if found is None:
         raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
     uf, mode = found
-    changes = {} if dwell_s is None else {"dwell_s": dwell_s}
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
+               if v is not None}
     settings = default_plan(uf, margin, start_mps, **changes)
     limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
@@ -129,9 +152,9 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
             viz.close()
     res.bag = str(writer.bag_dir) if writer is not None else None
     out = res.as_dict()
-    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin,
-               dwell_s=settings.dwell_s, simulated_s=rig.time_s, wall_s=time.monotonic() - t0,
-               monitor_times_s=[h[0] for h in history])
+    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
+               dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
+               wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
     if plot is not None:
         out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
     return out
@@ -172,8 +195,9 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
         if curve is not None:
             ax_z.plot(*curve, "--", color="C1", label="damping trend (quadratic in q)")
         if d is not None and d.prediction is not None and np.isfinite(d.prediction.speed_mps):
-            lo, hi = d.prediction.ci_mps
-            ax_z.axvspan(lo, min(hi, u_hi), color="C3", alpha=0.15)
+            lo, hi = d.prediction.ci_mps  # an open upper bound (inf) is drawn to the plot's edge, labelled
+            ax_z.axvspan(lo, min(hi, u_hi), color="C3", alpha=0.15,
+                         label=None if np.isfinite(hi) else "95 % interval: upper bound open")
             ax_z.axvline(d.prediction.speed_mps, color="C3",
                          label=f"predicted U_f {d.prediction.speed_mps:.2f} m/s ({d.prediction.method})")
     ax_z.axvline(uf, color="k", lw=0.8, label=f"model linear U_f {uf:.2f} m/s")
@@ -193,6 +217,9 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     def num(x: Any, fmt: str) -> str:
         return "-" if x is None else format(x, fmt)
 
+    def bound(x: float | None) -> str:  # an interval bound: open when the bootstrap draws did not all cross
+        return "open" if x is None else f"{x:.3f}"
+
     lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method"]
     for k, p in enumerate(out["test_points"], 1):
         ci = p["damping_ci"]
@@ -201,10 +228,12 @@ def format_flutter_test(out: dict[str, Any]) -> str:
                      f"{num(p['damping_ratio'], '8.4f')} {ci_s:>19} {p['method']}")
     ci = out["predicted_flutter_speed_ci_mps"]
     lines.append(f"predicted U_f: {num(out['predicted_flutter_speed_mps'], '.3f')} m/s"
-                 + ("" if ci is None else f" (95 % {ci[0]:.3f} .. {ci[1]:.3f})")
+                 + ("" if ci is None else f" (95 % {bound(ci[0])} .. {bound(ci[1])})")
                  + f" [{out['prediction_method']}]; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
     lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; fluttered: {out['fluttered']}; "
                  f"stop: {out['stop_reason']}")
+    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {out['node_rtf']:.1f})" if out.get("live")
+             else "in-process rig")
     lines.append(f"bag: {out['bag']}; plot: {out.get('plot')}; {out['simulated_s']:.0f} s simulated in "
-                 f"{out['wall_s']:.1f} s wall")
+                 f"{out['wall_s']:.1f} s wall on the {where}")
     return "\n".join(lines)

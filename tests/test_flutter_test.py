@@ -83,14 +83,16 @@ def test_default_plan_starts_at_half_the_model_speed():
 
 
 def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
-    """`panel-rig flutter-test --set panel.thickness_m=0.0004 --json` (short dwell to bound the test): the JSON keys
-    of the issue, no flutter, airspeeds below the model's U_f, a bag with the measured tip and the monitor."""
+    """`panel-rig flutter-test --in-process --set panel.thickness_m=0.0004 --json` (short dwell to bound the test):
+    the JSON keys of the issue, no flutter, airspeeds below the model's U_f, a bag with the measured tip and the
+    monitor. (The default, live path: tests/test_flutter_test_live.py.)"""
     import json
 
     from panel_rig.cli import main
     from panel_rig.recording.series import load_series
 
-    code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", "30", "--json", "--bag-dir",
+    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "30", "--json",
+                 "--bag-dir",
                  str(tmp_path), "--plot", str(tmp_path / "vg.png")])
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["fluttered"] is False

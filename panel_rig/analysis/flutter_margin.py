@@ -63,8 +63,15 @@ class BoundaryPrediction:
         return float(1.0 - airspeed_mps / self.speed_mps) if np.isfinite(self.speed_mps) else 1.0
 
     def as_dict(self) -> dict:
-        return {"predicted_flutter_speed_mps": self.speed_mps, "predicted_flutter_speed_ci_mps": list(self.ci_mps),
+        """JSON-ready: an infinite speed or interval bound (no crossing: the bound is open) as None (null)."""
+        return {"predicted_flutter_speed_mps": finite_or_none(self.speed_mps),
+                "predicted_flutter_speed_ci_mps": [finite_or_none(x) for x in self.ci_mps],
                 "method": self.method, "degree": self.degree}
+
+
+def finite_or_none(x: float) -> float | None:
+    """A number for JSON: None (null) when it is not finite (an open interval bound, no predicted crossing)."""
+    return float(x) if x is not None and np.isfinite(x) else None
 
 
 def zimmerman_weissenburger(s1: np.ndarray | complex, s2: np.ndarray | complex) -> np.ndarray:

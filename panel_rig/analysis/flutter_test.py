@@ -219,9 +219,10 @@ class FlutterTestResult:
     def as_dict(self) -> dict:
         d = self.final
         pred = d.prediction if d is not None else None
+        pd = None if pred is None else pred.as_dict()  # open (infinite) bounds as null
         out = {"test_points": [p.as_dict() for p in self.points],
-               "predicted_flutter_speed_mps": None if pred is None else pred.speed_mps,
-               "predicted_flutter_speed_ci_mps": None if pred is None else list(pred.ci_mps),
+               "predicted_flutter_speed_mps": None if pd is None else pd["predicted_flutter_speed_mps"],
+               "predicted_flutter_speed_ci_mps": None if pd is None else pd["predicted_flutter_speed_ci_mps"],
                "prediction_method": None if pred is None else pred.method,
                "max_airspeed_mps": self.max_airspeed_mps,
                "fluttered": bool(self.fluttered),
@@ -232,20 +233,19 @@ class FlutterTestResult:
         return out
 
 
-def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray | None, bool]],
-                  bands: Callable[[float], list[tuple[float, float]]], settings: FlutterTestSettings,
-                  on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
-    """Drive a test: ``measure(U)`` sets the airspeed, dwells and returns (measured tip, dt, shaker force or None,
-    fluttered); identification and decision after each point; stops on the decision or on flutter."""
+def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], settings: FlutterTestSettings,
+               on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
+    """The procedure's loop: ``next_point(U)`` sets the airspeed, dwells and returns (the identified test point,
+    fluttered); a decision after each point; stops on the decision or on flutter. The identification happens
+    wherever ``next_point`` gets it from (here for :func:`run_procedure`, in the rig node for the live test)."""
     res = FlutterTestResult()
     u: float | None = settings.start_mps
     while u is not None:
-        tip, dt, force, fluttered = measure(u)
+        pt, fluttered = next_point(u)
         res.max_airspeed_mps = max(res.max_airspeed_mps, u)
-        if fluttered:
-            res.fluttered = True
+        if fluttered or pt is None:
+            res.fluttered = res.fluttered or fluttered
             break
-        pt = identify_point(tip, dt, u, bands(u), force, settings.ssi)
         res.points.append(pt)
         d = decide(res.points, settings)
         res.decisions.append(d)
@@ -253,6 +253,36 @@ def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray
             on_point(pt, d)
         u = d.next_airspeed_mps
     return res
+
+
+def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray | None, bool]],
+                  bands: Callable[[float], list[tuple[float, float]]], settings: FlutterTestSettings,
+                  on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
+    """Drive a test: ``measure(U)`` sets the airspeed, dwells and returns (measured tip, dt, shaker force or None,
+    fluttered); identification here and decision after each point; stops on the decision or on flutter."""
+
+    def next_point(u: float) -> tuple[TestPoint | None, bool]:
+        tip, dt, force, fluttered = measure(u)
+        if fluttered:
+            return None, True
+        return identify_point(tip, dt, u, bands(u), force, settings.ssi), False
+
+    return run_points(next_point, settings, on_point)
+
+
+def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: float
+                    ) -> tuple[np.ndarray, float]:
+    """The samples of [t_from_s, t_to_s) linearly interpolated on a regular grid from ``t_from_s`` at the median
+    sample interval of the window (the node publishes at a rate that is not a whole number of physics steps, so
+    its sample intervals alternate). The live monitor and the bag replay both cut plateaus with this, so they
+    identify on the same samples. Returns (samples, interval s); empty when the window holds < 2 samples."""
+    t, y = np.asarray(t_s, float), np.asarray(y, float)
+    inside = (t >= t_from_s) & (t < t_to_s)
+    if np.count_nonzero(inside) < 2:
+        return np.zeros(0), 0.0
+    dt = float(np.median(np.diff(t[inside])))
+    grid = np.arange(t_from_s, t_to_s - 0.5 * dt, dt)
+    return np.interp(grid, t[inside], y[inside]), dt  # the window's samples only: live and replay agree
 
 
 #: a plateau counts as fluttered (not subcritical) when the measured tip exceeds this fraction of the panel length
@@ -263,27 +293,30 @@ FLUTTER_TIP_FRACTION = 0.02
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
-                  ssi: SSISettings = SSISettings()) -> list[TestPoint]:
+                  ssi: SSISettings = SSISettings(), dwell_s: float = np.inf) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
-    next command), resampled to the median sample interval, identified as live (``identify_point``). Only the
-    subcritical ascent is kept: plateaus at U > 0 with at least ``min_dwell_s``, in increasing airspeed, up to the
-    first one whose tip exceeds FLUTTER_TIP_FRACTION x L."""
+    next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
+    identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
+    ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
-    dt = float(np.median(np.diff(t)))
     cmds = sorted(airspeed_cmds)
     out: list[TestPoint] = []
     for k, (tc, u) in enumerate(cmds):
-        t_end = cmds[k + 1][0] if k + 1 < len(cmds) else t[-1]
+        t_end = min(cmds[k + 1][0] if k + 1 < len(cmds) else t[-1], tc + settle_s + dwell_s)
         if u <= 0 or t_end - tc - settle_s < min_dwell_s:
             continue
         if out and u <= out[-1].airspeed_mps:
             break
-        grid = np.arange(tc + settle_s, t_end - 0.5 * dt, dt)
-        yy = np.interp(grid, t, y)
-        if np.max(np.abs(yy)) > FLUTTER_TIP_FRACTION * panel_length_m:
+        run_in = (t >= tc) & (t < t_end)
+        if run_in.any() and np.max(np.abs(y[run_in])) > FLUTTER_TIP_FRACTION * panel_length_m:
             break
-        ff = None if force_npm is None else np.interp(grid, t, np.asarray(force_npm, float))
+        yy, dt = resample_window(t, y, tc + settle_s, t_end)
+        if yy.size < 16:
+            continue
+        ff = None
+        if force_npm is not None:
+            ff = np.interp(tc + settle_s + dt * np.arange(yy.size), t, np.asarray(force_npm, float))
         out.append(identify_point(yy, dt, u, bands(u), ff, ssi))
     return out

@@ -3,6 +3,7 @@ turbulence, sensor and safety as the node's rig. Used by the unit tests and as t
 
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
@@ -14,6 +15,9 @@ from panel_rig.analysis.flutter_test import (
     FlutterTestSettings,
     TestPoint,
     bands_from_model,
+    decide,
+    identify_point,
+    resample_window,
     run_procedure,
 )
 from panel_rig.config import PanelConfig
@@ -73,50 +77,86 @@ def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSet
 
 
 class FlutterMonitorSink:
-    """Live flutter monitor as a Rig sink (the node adds it with ``flutter_monitor:=true``): collects the measured
-    tip of each airspeed plateau (from an accepted ``airspeed_cmd`` + ``settle_s`` to the next one), and when the
-    plateau ends identifies it, updates the predictors and calls ``publish(time_s, point, decision)``. Plateaus
-    shorter than ``min_dwell_s`` or at U <= 0 are skipped; the identification runs in the caller's thread (a few
-    seconds per point: meant for fast mode)."""
+    """Live flutter monitor as a Rig sink (the node adds it with ``flutter_monitor:=true``): the test engineer's
+    per-point work on the full-rate measured tip, in simulated time. From an accepted ``airspeed_cmd`` at t_c it
+    drops the run-in [t_c, t_c + ``settle_s``), keeps the dwell [t_c + settle_s, t_c + settle_s + ``dwell_s``),
+    and as soon as the dwell is complete (or, if the next command comes first, at that command when at least
+    ``min_dwell_s`` was kept) identifies it (``identify_point``, bands from the model), updates the predictors
+    (``decide``) and calls ``publish(time_s, point, decision, fluttered=False)``. If the measured tip exceeds
+    FLUTTER_TIP_FRACTION x L or the rig aborts during the plateau (run-in included), it publishes at once with
+    ``fluttered=True`` (point without modes). ``waiting`` is true before the first command and from a published
+    result to the next command (the node's fast-mode hold uses it: a run is then reproducible from its seed).
+    Plateaus at U <= 0 and descents are not test points. The identification runs in the caller's thread (seconds
+    per point: meant for fast mode, where simulated time waits for it)."""
 
-    def __init__(self, cfg: PanelConfig, model, publish: Callable[[float, TestPoint, Decision], None],
-                 margin: float = 0.1, settle_s: float = 5.0, min_dwell_s: float = 20.0) -> None:
+    def __init__(self, cfg: PanelConfig, model, publish: Callable[..., None], margin: float = 0.1,
+                 settle_s: float = 5.0, min_dwell_s: float = 20.0, dwell_s: float = 200.0) -> None:
         from panel_rig.analysis.vg import model_flutter_speed
 
         found = model_flutter_speed(model)
         self.enabled = found is not None
-        self.uf_model, mode = found if found is not None else (float("nan"), 2)
-        self.bands = bands_from_model(model, mode)
-        self.settings = FlutterTestSettings(start_mps=0.0, step_mps=0.1 * self.uf_model, margin=margin)
-        self.publish, self.settle_s, self.min_dwell_s = publish, settle_s, min_dwell_s
+        self.uf_model, self.mode = found if found is not None else (float("nan"), 2)
+        self.bands = bands_from_model(model, self.mode)
+        self.settings = FlutterTestSettings(start_mps=0.0, step_mps=0.1 * self.uf_model, margin=margin,
+                                            settle_s=settle_s, dwell_s=dwell_s)
+        self.publish, self.settle_s, self.min_dwell_s, self.dwell_s = publish, settle_s, min_dwell_s, dwell_s
+        self.panel_length_m = cfg.panel_length_m
         self.points: list[TestPoint] = []
+        self.published = 0  # results published (points and flutter reports)
+        self.waiting = True  # for the first command (a node holding for its client starts the clock with it)
+        self.last_wall_s = 0.0
+        self.plateau_start_s = 0.0
         self._u: float | None = None
-        self._t0 = 0.0
         self._t: list[np.ndarray] = []
         self._y: list[np.ndarray] = []
 
+    @property
+    def window_s(self) -> tuple[float, float]:
+        """The dwell of the plateau in progress, simulated seconds."""
+        t0 = self.plateau_start_s + self.settle_s
+        return t0, t0 + self.dwell_s
+
     def on_reading(self, reading) -> None:
-        self._take(np.array([reading.time_s]), np.array([reading.tip_w_m]))
+        self._take(np.array([reading.time_s]), np.array([reading.tip_w_m]), reading.state)
 
     def on_block(self, block) -> None:
-        self._take(block.time_s, block.tip_w_m)
+        self._take(block.time_s, block.tip_w_m, block.state)
 
-    def _take(self, t: np.ndarray, y: np.ndarray) -> None:
-        if self._u is None:
+    def _take(self, t: np.ndarray, y: np.ndarray, state: str = RUNNING) -> None:
+        if self._u is None or self._u <= 0 or self.waiting:
             return
-        keep = t >= self._t0 + self.settle_s
+        t, y = np.asarray(t, float), np.asarray(y, float)
+        if fluttered(y, self.panel_length_m, state != RUNNING):
+            self._report_flutter(float(t[-1]))
+            return
+        lo, hi = self.window_s
+        keep = (t >= lo) & (t < hi)
         if np.any(keep):
-            self._t.append(np.asarray(t)[keep])
-            self._y.append(np.asarray(y)[keep])
+            self._t.append(t[keep])
+            self._y.append(y[keep])
+        if t[-1] >= hi:
+            self.finish(float(t[-1]))
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         if name != "airspeed_cmd" or not accepted or not self.enabled:
             return
-        self.finish(time_s)
-        self._u, self._t0, self._t, self._y = float(value), float(time_s), [], []
+        if not self.waiting:
+            self.finish(time_s)
+        self._u, self.plateau_start_s, self._t, self._y = float(value), float(time_s), [], []
+        self.waiting = False
+
+    def _report_flutter(self, time_s: float) -> None:
+        self._t, self._y = [], []
+        pt = TestPoint(float(self._u), None, None, "fluttered")
+        last = decide(self.points, self.settings) if self.points else None
+        d = Decision(None, f"fluttered at {self._u:.3f} m/s", last.trend if last else None,
+                     last.zw if last else None, last.prediction if last else None)
+        self.waiting = True
+        self.published += 1
+        self.publish(time_s, pt, d, fluttered=True)
 
     def finish(self, time_s: float) -> None:
-        """Identify the plateau in progress (if long enough) and publish."""
+        """Identify the plateau in progress (if at least ``min_dwell_s`` was kept) and publish."""
         if self._u is None or self._u <= 0 or not self._t:
             return
         t, y = np.concatenate(self._t), np.concatenate(self._y)
@@ -125,13 +165,16 @@ class FlutterMonitorSink:
             return
         if self.points and self._u <= self.points[-1].airspeed_mps:
             return  # the monitor follows the ascent only
-        dt = float(np.median(np.diff(t)))
-        grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
-        from panel_rig.analysis.flutter_test import decide, identify_point
-
-        pt = identify_point(np.interp(grid, t, y), dt, self._u, self.bands(self._u))
+        lo, hi = self.window_s
+        w0 = time.monotonic()
+        yy, dt = resample_window(t, y, lo, min(hi, time_s))
+        pt = identify_point(yy, dt, self._u, self.bands(self._u), ssi=self.settings.ssi)
         self.points.append(pt)
-        self.publish(time_s, pt, decide(self.points, self.settings))
+        d = decide(self.points, self.settings)
+        self.last_wall_s = time.monotonic() - w0  # identification + prediction, wall s (profiling)
+        self.waiting = True
+        self.published += 1
+        self.publish(time_s, pt, d, fluttered=False)
 
     def close(self) -> None:
         pass

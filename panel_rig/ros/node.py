@@ -50,6 +50,7 @@ SHAPE_POINTS = 31
 FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics)
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
+HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
 
 
@@ -119,6 +120,8 @@ class RigNode(Node):
         self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
                                                                         self.pub_shape, self.pub_diag, self.pub_truth)}
+        if self._flutter_monitor is not None:  # created with the sinks: recorded under its full name too
+            self._full[self.pub_flutter] = self._topic_name(self.pub_flutter.topic_name)
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -300,8 +303,13 @@ class RigNode(Node):
             from panel_rig.ros.flutter_monitor import TOPIC
 
             self.pub_flutter = self.create_publisher(DiagnosticArray, TOPIC, COMMAND_QOS)
-            self._flutter_monitor = FlutterMonitorSink(self.cfg, self.rig.stepper.model, self._publish_flutter)
+            self._flutter_monitor = FlutterMonitorSink(self.cfg, self.rig.stepper.model, self._publish_flutter,
+                                                       margin=p["flutter_test.margin"],
+                                                       settle_s=p["flutter_test.settle_s"],
+                                                       dwell_s=p["flutter_test.dwell_s"])
             self.rig.sinks.append(self._flutter_monitor)
+        self._flutter_hold = bool(p["flutter_test.hold"] and p["fast"] and self._flutter_monitor is not None)
+        self._hold_since: float | None = None
         if p["record"]:
             try:
                 from panel_rig.recording import BagWriter
@@ -326,14 +334,19 @@ class RigNode(Node):
             except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
                 self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
 
-    def _publish_flutter(self, time_s: float, point: Any, decision: Any) -> None:
+    def _publish_flutter(self, time_s: float, point: Any, decision: Any, fluttered: bool = False) -> None:
         """One flutter-monitor message per identified plateau (to the topic, the bag and the viewer)."""
         from panel_rig.ros.flutter_monitor import monitor_msg
 
+        mon = self._flutter_monitor
+        band = mon.bands(point.airspeed_mps)[1]
+        plateau = {"point_index": mon.published, "plateau_start_s": mon.plateau_start_s, "settle_s": mon.settle_s,
+                   "dwell_s": mon.dwell_s, "sim_time_s": time_s, "flutter_band_low_hz": band[0],
+                   "flutter_band_high_hz": band[1], "identify_wall_s": mon.last_wall_s}
         stamp = self._stamp_ns(time_s)
-        self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, self._flutter_monitor.settings.margin),
-                      stamp, qos="reliable")
-        if self._rerun is not None:
+        self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered,
+                                                    plateau=plateau), stamp, qos="reliable")
+        if self._rerun is not None and not fluttered:
             self._rerun.log_flutter_point(time_s, self._flutter_monitor.points, decision,
                                           self._flutter_monitor.settings.margin)
 
@@ -410,6 +423,24 @@ class RigNode(Node):
                                           f"at t = {self.rig.time_s:.3f} s")
                 return
             executor.spin_once(timeout_sec=0.002)
+
+    def flutter_holding(self) -> bool:
+        """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
+        point until the next one (the flutter-test client connects, then decides; simulated time waits, so results
+        do not depend on how fast the client is, and a run is reproducible from its seed). A client silent for
+        HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
+        if not (self._flutter_hold and self._flutter_monitor.waiting):
+            self._hold_since = None
+            return False
+        now = time.monotonic()
+        if self._hold_since is None:
+            self._hold_since = now
+        if now - self._hold_since > HOLD_TIMEOUT_S:
+            self._flutter_hold = False
+            self.get_logger().warning(f"no airspeed command for {HOLD_TIMEOUT_S:g} s (wall) after a test point: "
+                                      f"flutter-test hold released at t = {self.rig.time_s:.3f} s")
+            return False
+        return True
 
     def _control_diagnostics(self) -> dict[str, Any]:
         """Control actuator state and command ages (mean, p99, max over this diagnostics period; mean, p99 over the
@@ -613,6 +644,10 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
         node.apply_pending()
         if not node.fast:
             executor.spin_once(timeout_sec=0.05)
+            continue
+        if node.flutter_holding():  # a flutter-test client is deciding the next point: serve callbacks only
+            executor.spin_once(timeout_sec=FAST_SPIN_PERIOD_S)
+            pace_wall, pace_sim = time.monotonic(), node.rig.time_s
             continue
         node.fast_iteration()
         node.lockstep_wait(executor)

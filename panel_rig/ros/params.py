@@ -115,6 +115,15 @@ NODE_PARAMS: dict[str, NodeParam] = {
     "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
     "flutter_monitor": NodeParam(False, False, _bool, "identify each airspeed plateau of the measured tip and "
                                  "publish flutter_monitor (DiagnosticArray: damping, predicted U_f, margin)"),
+    # the monitor's test-point window and decision (panel_rig/rig/flutter_run.py FlutterMonitorSink), simulated s
+    "flutter_test.settle_s": _number(5.0, False, "flutter monitor: run-in dropped after each airspeed command, "
+                                     "simulated s", 0.0, 1e4),
+    "flutter_test.dwell_s": _number(200.0, False, "flutter monitor: response identified per test point (published "
+                                    "as soon as it is complete), simulated s", 20.0, 1e5),
+    "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision", 0.0, 1.0,
+                                   lo_open=True),
+    "flutter_test.hold": NodeParam(False, False, _bool, "fast mode: hold simulated time after each published test "
+                                   "point until the next airspeed command (a flutter-test client's lock-step)"),
 }
 
 #: node parameter -> field of :class:`panel_rig.rig.safety.SafetyLimits`

@@ -1,0 +1,59 @@
+"""Calibration of the flutter test's prediction over turbulence/sensor seeds (in-process Rig, default plan).
+
+``python benchmarks/flutter_coverage.py [N_SEEDS] [--set KEY=VALUE ...]`` runs the procedure once per seed of
+``tunnel.turbulence.seed`` (0 .. N-1) and prints one JSON line per seed (the prediction the procedure stopped on,
+its 95 % interval with an open bound as null, both predictors, the highest airspeed, fluttered) and a summary:
+the error spread and the coverage, i.e. how often the interval contains the model's linear U_f, and how often its
+lower bound alone is below it (the one-sided statement a clearance relies on). Set OPENBLAS_NUM_THREADS=1 on a
+shared 2-core machine (the SVDs are small).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+
+def run(n_seeds: int, sets: list[str]) -> None:
+    from panel_rig.config import load_config
+    from panel_rig.rig.flutter_run import run_on_rig
+
+    rows = []
+    for seed in range(n_seeds):
+        cfg = load_config(None, [*sets, f"tunnel.turbulence.seed={seed}"])
+        t0 = time.monotonic()
+        res, uf = run_on_rig(cfg, variant="full", margin=0.1)
+        d = res.as_dict()
+        pred, ci = d["predicted_flutter_speed_mps"], d["predicted_flutter_speed_ci_mps"]
+        lo = None if ci is None else ci[0]
+        hi = None if ci is None else ci[1]
+        row = {"seed": seed, "model_uf_mps": uf, "predicted_mps": pred, "ci_mps": ci,
+               "method": d["prediction_method"], "error": None if pred is None else pred / uf - 1,
+               "trend_mps": (d["damping_trend"] or {}).get("predicted_flutter_speed_mps"),
+               "zw_mps": (d["zimmerman_weissenburger"] or {}).get("predicted_flutter_speed_mps"),
+               "points": len(d["test_points"]), "max_airspeed_mps": d["max_airspeed_mps"],
+               "fluttered": d["fluttered"], "contains": lo is not None and lo <= uf and (hi is None or uf <= hi),
+               "lower_below": lo is not None and lo <= uf, "upper_open": ci is not None and hi is None,
+               "wall_s": round(time.monotonic() - t0, 1)}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    errs = [r["error"] for r in rows if r["error"] is not None]
+    n = len(rows)
+    print(json.dumps({"summary": True, "sets": sets, "seeds": n,
+                      "coverage": sum(r["contains"] for r in rows) / n,
+                      "lower_bound_below_uf": sum(r["lower_below"] for r in rows) / n,
+                      "upper_open": sum(r["upper_open"] for r in rows) / n,
+                      "within_3pct": sum(abs(e) <= 0.03 for e in errs) / n,
+                      "error_mean": sum(errs) / len(errs) if errs else None,
+                      "error_sd": (math.sqrt(sum((e - sum(errs) / len(errs)) ** 2 for e in errs) / (len(errs) - 1))
+                                   if len(errs) > 1 else None),
+                      "fluttered": sum(r["fluttered"] for r in rows)}))
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    sets = [args[i + 1] for i, a in enumerate(args) if a == "--set"]
+    plain = [a for i, a in enumerate(args) if a != "--set" and (i == 0 or args[i - 1] != "--set")]
+    run(int(plain[0]) if plain else 8, sets)

@@ -1,0 +1,116 @@
+"""The flutter-test client: drives a running rig node over its topics, as a tunnel's test engineer would.
+
+It publishes airspeed set-points on ``airspeed_cmd`` and reads one result per test point from the node's
+``flutter_monitor`` (DiagnosticArray, see :mod:`panel_rig.ros.flutter_monitor`): the node's monitor identifies
+each plateau on the full-rate measured tip in-process (settle and dwell in simulated time), so the 500 Hz tip
+stream never goes through this client. The client rebuilds each test point from the message (the estimates bit
+for bit), predicts and decides with its own settings (:func:`panel_rig.analysis.flutter_test.run_points`), and
+reads liveness and simulated time from ``/diagnostics`` (2 Hz wall). It subscribes to nothing at the sample rate.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+
+from panel_rig.analysis.flutter_test import TestPoint
+from panel_rig.ros.flutter_monitor import STATUS_NAME, TOPIC, parse_monitor, point_from_values
+
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+MONITOR_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class RigGone(RuntimeError):
+    """The node stopped answering (no diagnostics, or its process ended) before the test finished."""
+
+
+class FlutterTestClient(Node):
+    """Airspeed commands out; flutter-monitor results and tunnel diagnostics in."""
+
+    def __init__(self, namespace: str = "/rig", timeout_s: float = 60.0, alive: Callable[[], bool] | None = None,
+                 **kwargs: Any) -> None:
+        super().__init__("panel_rig_flutter_test", namespace=namespace, **kwargs)
+        self.timeout_s = timeout_s
+        self.alive = alive or (lambda: True)
+        self.pub_airspeed = self.create_publisher(Float64, "airspeed_cmd", COMMAND_QOS)
+        self.results: list[dict[str, Any]] = []
+        self.diagnostics: dict[str, str] = {}
+        self._last_heard = time.monotonic()
+        self.create_subscription(DiagnosticArray, TOPIC, self._on_monitor, MONITOR_QOS)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, COMMAND_QOS)
+
+    def _on_monitor(self, msg: DiagnosticArray) -> None:
+        if msg.status and msg.status[0].name == STATUS_NAME:
+            self.results.append(parse_monitor(msg))
+            self._last_heard = time.monotonic()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name == "panel_rig: tunnel":
+                self.diagnostics = {kv.key: kv.value for kv in st.values}
+                self._last_heard = time.monotonic()
+
+    @property
+    def sim_time_s(self) -> float:
+        """The node's simulated time as of its last diagnostics (nan before any)."""
+        return float(self.diagnostics.get("sim_time_s", "nan"))
+
+    def _spin(self, executor: Any, timeout_s: float = 0.05) -> None:
+        executor.spin_once(timeout_sec=timeout_s)
+        if not self.alive():
+            raise RigGone("the rig node exited")
+        if time.monotonic() - self._last_heard > self.timeout_s:
+            raise RigGone(f"nothing from the rig node for {self.timeout_s:g} s (wall)")
+
+    def wait_for_rig(self, executor: Any, startup_s: float = 180.0) -> None:
+        """Until the node publishes diagnostics and subscribes to ``airspeed_cmd`` (model build and JIT load can
+        take a minute on a cold cache: ``startup_s`` of wall time)."""
+        deadline = time.monotonic() + startup_s
+        while not self.diagnostics or self.pub_airspeed.get_subscription_count() == 0:
+            self._last_heard = time.monotonic()  # start-up is bounded by the deadline, not the silence timeout
+            self._spin(executor, 0.1)
+            if time.monotonic() > deadline:
+                raise RigGone(f"the rig node did not come up within {startup_s:g} s (wall)")
+
+    def command(self, airspeed_mps: float) -> None:
+        self.pub_airspeed.publish(Float64(data=float(airspeed_mps)))
+
+    def test_point(self, executor: Any, airspeed_mps: float) -> tuple[TestPoint | None, bool, dict[str, Any]]:
+        """Command ``airspeed_mps`` and wait for the monitor's result for it: (point, fluttered, raw values). The
+        dwell is the node's, in simulated time; this waits in wall time for however long that takes."""
+        seen = len(self.results)
+        rejected = self._rejected()
+        self.command(airspeed_mps)
+        self._last_heard = time.monotonic()
+        while True:
+            for values in self.results[seen:]:
+                if values.get("airspeed_mps") == float(airspeed_mps):
+                    fluttered = values.get("fluttered") == "true"
+                    return (None if fluttered else point_from_values(values)), fluttered, values
+            seen = len(self.results)
+            if self._rejected() > rejected:  # the node refused the set-point: no test point will come
+                raise RigGone(f"airspeed {airspeed_mps:g} m/s rejected by the rig: "
+                              f"{self.diagnostics.get('last_rejection', '?')}")
+            self._spin(executor, 0.05)
+
+    def _rejected(self) -> int:
+        try:
+            return int(self.diagnostics.get("rejected_commands", "0"))
+        except ValueError:
+            return 0
+
+    def settle_commands(self, executor: Any, wall_s: float = 0.3) -> None:
+        """Serve callbacks for a moment so a last command goes out before the client stops."""
+        end = time.monotonic() + wall_s
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+
+
+def finite_or_none(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)

@@ -1,0 +1,179 @@
+"""``panel-rig flutter-test`` on the live node: start the rig node (fast, turbulence and sensor of the run's
+physics, recording, flutter monitor with hold) in a private ROS domain, drive it with the flutter-test client, stop
+it, and hand back the JSON payload. See :mod:`panel_rig.flutter_cli` for why a subprocess."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+NAMESPACE = "/rig"
+STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
+
+
+def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
+                    bag_dir: Path | None, rerun: str | None) -> dict[str, Any]:
+    """Every parameter the node needs for the test: the run's physics (so the node's model is the one the test
+    plan was made for), fast mode, the monitor's window and hold, recording and the viewer."""
+    from panel_rig.config import SCHEMA
+    from panel_rig.ros.params import NODE_PARAMS
+
+    flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
+    flat = {k: (list(v) if isinstance(v, tuple) else v) for k, v in flat.items()}
+    default_max = NODE_PARAMS["safety.max_airspeed_mps"].default
+    # readings every whole number of physics steps nearest the default 500 Hz (4 steps of 1/2048 s: 512 Hz), so
+    # the monitor identifies on a regular record as the in-process driver does; at 500 Hz the intervals alternate
+    # between 4 and 5 steps and each window must be interpolated onto a grid
+    steps = max(1, round(1.0 / (NODE_PARAMS["publish_rate_hz"].default * cfg.dt_s)))
+    return {**flat, "fast": True, "model.variant": variant, "flutter_monitor": True,
+            "publish_rate_hz": 1.0 / (steps * cfg.dt_s),
+            "flutter_test.settle_s": float(settle_s), "flutter_test.dwell_s": float(dwell_s),
+            "flutter_test.margin": float(margin), "flutter_test.hold": True,
+            # the tunnel's limit must not stop the approach of a stiffer panel's boundary
+            "safety.max_airspeed_mps": float(max(default_max, 1.2 * uf_mps)),
+            "record": bag_dir is not None, "bag_dir": str(bag_dir) if bag_dir is not None else "bags",
+            "rerun": f"save:{rerun}" if rerun else "none"}
+
+
+def private_domain_id() -> int:
+    """A random ROS domain id (1..101: the range whose ports are safe on Linux), for a node + client pair that
+    nobody else on the host should see (discovery is also limited to this host)."""
+    return random.randint(1, 101)
+
+
+def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
+             bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
+             dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
+             max_points: int | None = None, startup_s: float = 180.0) -> dict[str, Any]:
+    """The procedure on a freshly started live node; returns the JSON payload (the issue's keys, plus
+    ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison)."""
+    t0 = time.monotonic()
+    did = private_domain_id() if domain_id is None else int(domain_id)
+    base = Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir())
+    base.mkdir(parents=True, exist_ok=True)
+    run_dir = Path(tempfile.mkdtemp(prefix=time.strftime("flutter_test_%Y%m%d_%H%M%S_"), dir=base))
+
+    # the pre-test analysis (this process) gives the plan: U_f, the start and the step
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+    from panel_rig.rig.flutter_run import default_plan
+
+    model = Stepper(cfg, variant=variant).model
+    found = model_flutter_speed(model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
+    uf, mode = found
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
+               if v is not None}
+    settings = default_plan(uf, margin, start_mps, **changes)
+    prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
+                          run_dir if bag_dir is not None else None, rerun)
+    params_file = run_dir / "node_params.yaml"
+    params_file.write_text(yaml.safe_dump({"panel_rig": {"ros__parameters": prm}}))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    # the monitor's SVDs are <= ~160 x 160: BLAS threads only contend (measured 3-7x slower per point with the
+    # default threads on the 2 shared cores, docs/validation.md section 10); the user's own setting wins
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params", str(params_file),
+           "--ros-args", "-r", f"__ns:={NAMESPACE}"]
+    log_path = run_dir / "node.log"
+    with open(log_path, "w") as log:
+        node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+    from panel_rig.ros.flutter_client import RigGone
+
+    try:
+        res, results, timing = _drive(node, did, settings, startup_s)
+    except RigGone as exc:
+        raise RigGone(f"{exc} (node log: {log_path})") from None
+    finally:
+        code = _stop(node)
+    bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
+    res.bag = str(bags[-1]) if bags and bag_dir is not None else None
+    out = res.as_dict()
+    last = results[-1] if results else {}
+    sim = float(last.get("sim_time_s", float("nan")))
+    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=True,
+               dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
+               wall_s=time.monotonic() - t0, node_startup_wall_s=timing["startup_s"],
+               test_wall_s=timing["test_s"], node_rtf=sim / timing["test_s"] if timing["test_s"] > 0 else None,
+               node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
+               node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
+               monitor_times_s=[float(r["sim_time_s"]) for r in results],
+               identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
+    if plot is not None:
+        from panel_rig.flutter_cli import plot_flutter_test
+
+        out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
+    return out
+
+
+def _finite(x: Any) -> float | None:
+    import math
+
+    return float(x) if isinstance(x, float) and math.isfinite(x) else None
+
+
+def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float
+           ) -> tuple[Any, list[dict[str, Any]], dict[str, float]]:
+    """The client's side, in its own rclpy context (the calling process may have another)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from panel_rig.analysis.flutter_test import run_points
+    from panel_rig.ros.flutter_client import FlutterTestClient
+
+    saved = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by the middleware at init
+    ctx = Context()
+    try:
+        rclpy.init(context=ctx, domain_id=domain_id)
+    finally:
+        if saved is None:
+            os.environ.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
+        else:
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = saved
+    executor = SingleThreadedExecutor(context=ctx)
+    client = FlutterTestClient(NAMESPACE, alive=lambda: node.poll() is None, context=ctx)
+    executor.add_node(client)
+    timing = {"startup_s": float("nan"), "test_s": float("nan")}
+    t0 = time.monotonic()
+    try:
+        client.wait_for_rig(executor, startup_s)
+        timing["startup_s"] = time.monotonic() - t0
+        t1 = time.monotonic()
+
+        def next_point(u: float) -> tuple[Any, bool]:
+            pt, fluttered, _ = client.test_point(executor, u)
+            return pt, fluttered
+
+        res = run_points(next_point, settings)
+        timing["test_s"] = time.monotonic() - t1
+        client.command(0.0)  # the tunnel down, as an operator ends a test
+        client.settle_commands(executor)
+        return res, list(client.results), timing
+    finally:
+        executor.remove_node(client)
+        client.destroy_node()
+        executor.shutdown()
+        rclpy.shutdown(context=ctx)
+
+
+def _stop(node: subprocess.Popen) -> int:
+    """SIGINT (the node closes its bag), then wait; kill only if it does not stop."""
+    if node.poll() is None:
+        node.send_signal(signal.SIGINT)
+    try:
+        return node.wait(STOP_WAIT_S)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        return node.wait()

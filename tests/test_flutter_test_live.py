@@ -1,0 +1,118 @@
+"""`panel-rig flutter-test` end to end on the live node over topics (the default path): the command starts the rig
+node in a private ROS domain, commands the airspeed on /rig/airspeed_cmd and takes each test point from the
+node's /rig/flutter_monitor. Bounded: a thicker panel (any --set configuration must work), 40 s dwells, three
+points (0.5, 0.6, 0.7 U_f), ~135 s simulated."""
+
+import json
+
+import pytest
+
+SETTLE_S, DWELL_S = 5.0, 40.0
+
+
+@pytest.fixture(scope="module")
+def live_run(tmp_path_factory):
+    pytest.importorskip("rclpy")
+    from panel_rig.cli import main
+
+    tmp = tmp_path_factory.mktemp("flutter_live")
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", str(DWELL_S), "--max-points",
+                     "3", "--json", "--bag-dir", str(tmp), "--plot", str(tmp / "vg.png")])
+    return code, json.loads(buf.getvalue()), tmp
+
+
+def test_live_flutter_test_json_and_lockstep(live_run):
+    """The issue's JSON keys; the node was driven live (its own model, its own bag, its exit code 0); the client's
+    prediction equals the node monitor's own (the same points rebuilt bit for bit, the same seeded bootstrap)."""
+    code, out, tmp = live_run
+    assert code == 0, out
+    for key in ("test_points", "predicted_flutter_speed_mps", "predicted_flutter_speed_ci_mps", "max_airspeed_mps",
+                "fluttered", "bag"):
+        assert key in out
+    assert out["live"] is True and out["node_exit_code"] == 0 and out["fluttered"] is False
+    assert out["model_flutter_speed_mps"] > 11.0  # thicker panel: later flutter than the paper's 10.48 m/s
+    u = [p["airspeed_mps"] for p in out["test_points"]]
+    assert len(u) == 3 and u[0] == pytest.approx(0.5 * out["model_flutter_speed_mps"]) and u == sorted(u)
+    assert out["max_airspeed_mps"] == max(u) < out["model_flutter_speed_mps"]
+    for p in out["test_points"]:
+        lo, hi = p["damping_ci"]
+        assert lo < p["damping_ratio"] < hi and 0.0 < p["damping_ratio"] < 0.05
+        assert p["method"] == "ssi-cov" and p["first_mode"] is not None
+    assert out["predicted_flutter_speed_mps"] is not None
+    assert out["node_prediction_mps"] == out["predicted_flutter_speed_mps"]
+    assert out["stop_reason"] == "3 test points done"
+    assert (tmp / "vg.png").stat().st_size > 0
+
+
+def test_live_dwell_is_in_simulated_time_and_the_node_holds_for_the_client(live_run):
+    """From the recorded monitor messages and commands: each result comes one block after settle + dwell of
+    simulated time from its command, and the next command arrives at the simulated instant of the previous result
+    (the node held while the client decided): the run does not depend on how fast either process is."""
+    from panel_rig.recording.reader import read_bag
+    from panel_rig.ros.flutter_monitor import parse_monitor
+
+    _, out, _ = live_run
+    results, cmds = [], []
+    for topic, _, stamp_ns, msg in read_bag(out["bag"], topics=["/rig/flutter_monitor", "/rig/airspeed_cmd"]):
+        if topic.endswith("flutter_monitor"):
+            results.append(parse_monitor(msg))
+        else:
+            cmds.append((stamp_ns * 1e-9, msg.data))
+    assert [r["airspeed_mps"] for r in results] == [p["airspeed_mps"] for p in out["test_points"]]
+    assert [c[1] for c in cmds] == [p["airspeed_mps"] for p in out["test_points"]] + [0.0]
+    for r, (t_cmd, _) in zip(results, cmds):
+        assert r["plateau_start_s"] == pytest.approx(t_cmd, abs=1e-6)
+        assert r["settle_s"] == SETTLE_S and r["dwell_s"] == DWELL_S
+        assert 0.0 <= r["sim_time_s"] - (t_cmd + SETTLE_S + DWELL_S) < 0.2  # one fast-mode block at most
+    for r, (t_next, _) in zip(results, cmds[1:]):
+        assert t_next == pytest.approx(r["sim_time_s"], abs=1e-6)
+    assert out["simulated_s"] == pytest.approx(results[-1]["sim_time_s"])
+
+
+def test_analyze_replays_the_live_identification(live_run):
+    """`panel-rig analyze BAG` on the node's bag cuts the same windows (the node's flutter_test.* parameters are
+    in the bag) and identifies the same points."""
+    from panel_rig.cli import analyze_bag
+
+    _, out, _ = live_run
+    ft = analyze_bag(out["bag"])["flutter_test"]
+    assert [p["airspeed_mps"] for p in ft["test_points"]] == [p["airspeed_mps"] for p in out["test_points"]]
+    for live, again in zip(out["test_points"], ft["test_points"]):
+        assert again["damping_ratio"] == pytest.approx(live["damping_ratio"], rel=1e-6)
+        assert again["frequency_hz"] == pytest.approx(live["frequency_hz"], rel=1e-9)
+    assert ft["predicted_flutter_speed_mps"] == pytest.approx(out["predicted_flutter_speed_mps"], rel=1e-6)
+
+
+def test_live_flutter_test_reports_a_dead_node_in_one_line(tmp_path, capsys, monkeypatch):
+    """A node that cannot start (here: a physics value the node refuses) ends the command with one line naming
+    the node's log, exit 1, no traceback."""
+    pytest.importorskip("rclpy")
+    from panel_rig.cli import main
+    from panel_rig.ros import flutter_live
+
+    real = flutter_live.node_parameters
+
+    def broken(*a, **k):
+        return {**real(*a, **k), "publish_rate_hz": -1.0}
+
+    monkeypatch.setattr(flutter_live, "node_parameters", broken)
+    code = main(["flutter-test", "--dwell", "20", "--json", "--bag-dir", str(tmp_path), "--plot",
+                 str(tmp_path / "vg.png")])
+    err = capsys.readouterr().err
+    assert code == 1 and "node log:" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys):
+    """A first point above the tunnel's limit is refused by the node: the command says so in one line (exit 1)
+    instead of waiting for a test point that will never come."""
+    pytest.importorskip("rclpy")
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")])
+    err = capsys.readouterr().err
+    assert code == 1 and "rejected" in err and "exceeds the limit" in err and len(err.strip().splitlines()) == 1
