@@ -1,5 +1,10 @@
 """The live flutter monitor in the rig node (``flutter_monitor:=true``, fast mode, turbulence and sensor on): one
-``flutter_monitor`` DiagnosticArray per finished airspeed plateau, received over ROS by a subscriber."""
+``flutter_monitor`` DiagnosticArray per finished airspeed plateau, received over ROS by a subscriber.
+
+``flutter_test.hold`` makes the run deterministic: the node holds simulated time until the first command and after
+each published point until the next, so every plateau starts at the same simulated instant and sees the same
+turbulence whatever the machine's speed (without it the commands landed at wall-clock-dependent instants and a
+realisation now and then gave no prediction from three short plateaus)."""
 
 import os
 import random
@@ -12,7 +17,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PLATEAU_S = 30.0  # simulated (5 s run-in + >= 20 s identified); ~5 s wall each at the node's fast-mode speed here
+SETTLE_S, DWELL_S = 5.0, 25.0  # simulated: run-in dropped, then the identified window; ~5 s wall a plateau
 
 
 def test_node_publishes_one_monitor_message_per_plateau(tmp_path, monkeypatch):
@@ -26,7 +31,8 @@ def test_node_publishes_one_monitor_message_per_plateau(tmp_path, monkeypatch):
                ROS_LOG_DIR=str(tmp_path))
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params", str(ROOT / "config/tang_dowell_2002.yaml"),
            "--ros-args", "-r", "__ns:=/rig", "--params-file", str(ROOT / "config/rig.yaml"), "-p", "fast:=true",
-           "-p", "flutter_monitor:=true", "-p", "model.variant:=full"]
+           "-p", "flutter_monitor:=true", "-p", "model.variant:=full", "-p", "flutter_test.hold:=true",
+           "-p", f"flutter_test.settle_s:={SETTLE_S}", "-p", f"flutter_test.dwell_s:={DWELL_S}"]
     with open(tmp_path / "node.log", "w") as log:
         node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):  # discover the node as it discovers us
@@ -37,15 +43,17 @@ def test_node_publishes_one_monitor_message_per_plateau(tmp_path, monkeypatch):
     got = []
     try:
         op = Operator("/rig", 30.0)
-        op.create_subscription(DiagnosticArray, "flutter_monitor", lambda m: got.append(parse_monitor(m)), 10)
-        op.wait_for_rig()
-        t_wall = time.monotonic()
-        for u in (6.0, 7.0, 8.0, 0.0):
-            op.send("airspeed", u)
-            op.wait_until(op.time_s + PLATEAU_S)
-        deadline = time.monotonic() + 10.0
-        while len(got) < 3 and time.monotonic() < deadline:
+        sub = op.create_subscription(DiagnosticArray, "flutter_monitor", lambda m: got.append(parse_monitor(m)), 10)
+        deadline = time.monotonic() + 60.0  # the node holds (no readings) until the first command: wait for discovery
+        while (op.pubs["airspeed"].get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
+                and time.monotonic() < deadline:
             op._spin(0.05)
+        t_wall = time.monotonic()
+        for i, u in enumerate((6.0, 7.0, 8.0)):
+            op.send("airspeed", u)
+            deadline = time.monotonic() + 60.0  # the node holds after publishing: wait for this point's result
+            while len(got) <= i and time.monotonic() < deadline:
+                op._spin(0.05)
         wall = time.monotonic() - t_wall
         op.destroy_node()
     finally:
@@ -60,5 +68,8 @@ def test_node_publishes_one_monitor_message_per_plateau(tmp_path, monkeypatch):
         assert g["damping_ci_low"] < g["damping_ratio"] < g["damping_ci_high"]
         assert 0.0 < g["damping_ratio"] < 0.05 and 20.0 < g["frequency_hz"] < 27.0
     assert got[2]["predicted_flutter_speed_mps"] > 8.0 and got[2]["prediction_method"] != "none"
+    starts = [g["plateau_start_s"] for g in got]
+    # each plateau begins where the previous one was published (the node stops at the end of a fast block: < 0.13 s)
+    assert starts[1:] == pytest.approx([s + SETTLE_S + DWELL_S for s in starts[:-1]], abs=0.13), starts
     assert wall < 90.0
 
