@@ -93,10 +93,16 @@ def shm_mapped(pids: list[int] | None = None) -> set[str]:
     return used
 
 
-def shm_left_behind(own: set[str]) -> set[str]:
-    """Of the node's own segments (mapped by it while it ran), those still on disk that no live process maps.
-    Deterministic: files of other processes on this machine (other tests, other sessions) never count."""
-    return {name for name in own if (Path("/dev/shm") / name).exists()} - shm_mapped()
+def shm_files() -> set[str]:
+    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")}
+
+
+def shm_left_behind(own: set[str], before: set[str]) -> set[str]:
+    """Of the segments the node created (mapped by it while it ran, absent before it started), those still on disk
+    that no live process maps. Deterministic: files of other processes on this machine (other tests, other
+    sessions) never count, nor a port segment that a crashed process left before the node started and the node
+    then opened."""
+    return {name for name in own - before if (Path("/dev/shm") / name).exists()} - shm_mapped()
 
 
 @pytest.fixture(scope="module")
@@ -373,6 +379,7 @@ def _start(ros_env: dict[str, str], *params: str) -> subprocess.Popen:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_exits_cleanly_in_real_time(ros_env: dict[str, str], client: Client, sig: signal.Signals) -> None:
+    before = shm_files()
     proc = _start(ros_env, "diagnostics_rate_hz:=5.0")
     own: set[str] = set()
     try:
@@ -394,7 +401,7 @@ def test_signal_exits_cleanly_in_real_time(ros_env: dict[str, str], client: Clie
     assert f"physics parameters given: {len(SCHEMA)} of {len(SCHEMA)}" in out
     assert "Traceback" not in out
     assert own, "the node mapped no Fast DDS shared memory (is the SHM transport on?)"
-    leftovers = shm_left_behind(own)
+    leftovers = shm_left_behind(own, before)
     assert not leftovers, f"left in /dev/shm: {sorted(leftovers)}"
 
 
