@@ -5,15 +5,18 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, Self
 
 import mcap
+import numpy as np
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 from panel_rig.recording import schemas
-from panel_rig.recording.cdr import trim_trailing_padding
+from panel_rig.recording.cdr import ends_with_empty_sequence, trim_trailing_padding
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import (
     BagSummary,
@@ -26,6 +29,8 @@ from panel_rig.recording.qos import offered_qos, qos_yaml
 PROFILE = "ros2"
 LIBRARY = f"panel_rig recorder (rosbag2-compatible); mcap-python {mcap.__version__}"
 MESSAGE_ENCODING = "cdr"
+MESSAGE_OPCODE = 0x05  # MCAP Message record: opcode u8, length u64, channel u16, sequence u32, log u64, publish u64
+MESSAGE_HEADER_BYTES = 22  # channel id + sequence + log time + publish time
 PARAMETERS_RECORD = "panel_rig/parameters"
 PARAMETERS_KEY = "panel_rig.parameters"
 
@@ -67,6 +72,91 @@ def _may_end_in_sequence(msg_class: type) -> bool:
         except (ImportError, AttributeError):
             return True
     return False
+
+
+class _McapInternals:
+    """Block writes into an ``mcap.writer.Writer``'s open chunk: the Message records of N samples built with
+    numpy and appended as one buffer, with the chunk's message index, times and the file statistics updated
+    exactly as ``Writer.add_message`` does per message (chunks are closed at the same message). Uses the
+    writer's private fields (mcap-python 1.5-1.6); :meth:`of` returns None when they are not there, and the
+    caller writes message by message."""
+
+    __slots__ = ("writer", "chunk", "stats", "chunk_size", "finalize")
+
+    def __init__(self, writer: Writer, chunk: Any, stats: Any, chunk_size: int, finalize: Any) -> None:
+        self.writer, self.chunk, self.stats, self.chunk_size, self.finalize = writer, chunk, stats, chunk_size, finalize
+
+    @staticmethod
+    def of(writer: Writer) -> _McapInternals | None:
+        chunk = getattr(writer, "_Writer__chunk_builder", None)
+        stats = getattr(writer, "_Writer__statistics", None)
+        size = getattr(writer, "_Writer__chunk_size", None)
+        finalize = getattr(writer, "_Writer__finalize_chunk", None)
+        needed = ("message_indices", "record_writer", "num_messages", "message_start_time", "message_end_time")
+        if chunk is None or stats is None or not isinstance(size, int) or finalize is None or \
+                not all(hasattr(chunk, a) for a in needed) or not hasattr(stats, "channel_message_counts"):
+            return None
+        return _McapInternals(writer, chunk, stats, size, finalize)
+
+    def add_block(self, channels: Sequence[_Channel], stamps: np.ndarray, payloads: Sequence[np.ndarray]) -> None:
+        n, k_topics = stamps.shape[0], len(channels)
+        names, formats, offsets, at = [], [], [], 0
+        for k, payload in enumerate(payloads):  # one sample's K records, packed
+            size = payload.shape[1]
+            for field, fmt, width in (("op", "u1", 1), ("len", "<u8", 8), ("ch", "<u2", 2), ("seq", "<u4", 4),
+                                      ("log", "<u8", 8), ("pub", "<u8", 8), ("data", ("u1", (size,)), size)):
+                names.append(f"{field}{k}")
+                formats.append(fmt)
+                offsets.append(at)
+                at += width
+        rows = np.empty(n, dtype=np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": at}))
+        for k, (c, payload) in enumerate(zip(channels, payloads)):
+            rows[f"op{k}"] = MESSAGE_OPCODE
+            rows[f"len{k}"] = MESSAGE_HEADER_BYTES + payload.shape[1]
+            rows[f"ch{k}"] = c.channel_id
+            rows[f"seq{k}"] = (c.sequence + np.arange(n)) & 0xFFFFFFFF
+            rows[f"log{k}"] = stamps
+            rows[f"pub{k}"] = stamps
+            rows[f"data{k}"] = payload
+        blob = rows.tobytes()
+        sizes = np.tile([9 + MESSAGE_HEADER_BYTES + p.shape[1] for p in payloads], n)
+        ends = np.cumsum(sizes)  # end of message j in blob
+        log = np.repeat(stamps, k_topics)
+        channel_ids = [c.channel_id for c in channels]
+        stats = self.stats
+        for k, cid in enumerate(channel_ids):
+            stats.channel_message_counts[cid] += n
+        first, last = int(stamps.min()), int(stamps.max())
+        stats.message_start_time = first if stats.message_count == 0 else min(stats.message_start_time, first)
+        stats.message_end_time = max(stats.message_end_time, last)
+        stats.message_count += n * k_topics
+        j, total = 0, n * k_topics
+        while j < total:
+            chunk = self.chunk
+            base = chunk.record_writer.count
+            start = int(ends[j - 1]) if j else 0
+            # the chunk closes after the first message that takes it over chunk_size (Writer.__maybe_finalize_chunk)
+            over = int(np.searchsorted(ends, start + self.chunk_size - base, side="right"))
+            stop = min(max(over + 1, j + 1), total)
+            seg_log = log[j:stop]
+            lo, hi = int(seg_log.min()), int(seg_log.max())
+            chunk.message_start_time = lo if chunk.num_messages == 0 else min(chunk.message_start_time, lo)
+            chunk.message_end_time = max(chunk.message_end_time, hi)
+            offsets_in_chunk = (base - start) + np.concatenate(([start], ends[j:stop - 1]))
+            indices = chunk.message_indices
+            for m in range(j, min(j + k_topics, stop)):  # channels in order of first appearance in the chunk
+                cid = channel_ids[m % k_topics]
+                if not indices.get(cid):
+                    indices[cid] = MessageIndex(channel_id=cid, records=[])
+            for k, cid in enumerate(channel_ids):
+                sel = slice((k - j) % k_topics, None, k_topics)
+                if seg_log[sel].size:
+                    indices[cid].records.extend(zip(seg_log[sel].tolist(), offsets_in_chunk[sel].tolist()))
+            chunk.num_messages += stop - j
+            chunk.record_writer.write(blob[start:int(ends[stop - 1])])
+            if chunk.record_writer.count > self.chunk_size:
+                self.finalize()
+            j = stop
 
 
 def _prepare_dir(bag_dir: Path) -> Path:
@@ -155,16 +245,49 @@ class BagWriter:
                 self.dropped_after_close += 1
                 return False
             channel = self._channel(topic, msg, qos)
-            data = _serialize(msg) if data is None else data
-            if channel.may_end_empty:
-                data = trim_trailing_padding(channel.info.type, channel.schema, msg, data)
-            self._writer.add_message(
-                channel.channel_id, log_time=stamp_ns, data=data,
-                publish_time=stamp_ns, sequence=channel.sequence,
-            )
-            channel.sequence += 1
-            channel.info.message_count += 1
-            self._summary.note_stamp(stamp_ns)
+            self._add_locked(channel, msg, stamp_ns, _serialize(msg) if data is None else data)
+            self._dirty = True
+            if time.monotonic() - self._last_flush_s >= self.flush_period_s:
+                self._flush_locked()
+        return True
+
+    def write_block(self, topics: Sequence[tuple[str, Any]], stamps_ns: np.ndarray, payloads: Sequence[np.ndarray],
+                    *, qos: str = "sensor") -> bool:
+        """Record N samples of several fixed-size topics at once: for each sample i, for each topic k in order,
+        the message ``payloads[k][i]`` (an (N, size_k) uint8 array of CDR) on ``topics[k] = (name, msg)``
+        (``msg`` gives the type) at ``stamps_ns[i]``. The bag is byte for byte what ``write`` called per
+        message in that order gives (same records, sequence numbers, chunk boundaries and indexes), but the
+        MCAP records are built with numpy. False if closed."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        n, k_topics = stamps.shape[0], len(topics)
+        arrays = [np.asarray(p) for p in payloads]
+        if len(arrays) != k_topics or any(a.ndim != 2 or a.dtype != np.uint8 or a.shape[0] != n for a in arrays):
+            raise RecordingError("write_block: one (N, size) uint8 payload array per topic expected")
+        for name, _ in topics:
+            if not isinstance(name, str) or not name.startswith("/") or len(name) < 2:
+                raise RecordingError(f"topic must be an absolute ROS name like '/rig/x', got {name!r}")
+        if n and int(stamps.min()) < 0:
+            raise RecordingError("stamp_ns must be non-negative")
+        with self._critical():
+            if self._closed:
+                self.dropped_after_close += n * k_topics
+                return False
+            if not n:
+                return True
+            channels = [self._channel(name, msg, qos) for name, msg in topics]
+            fast = _McapInternals.of(self._writer)
+            if fast is None or any(c.may_end_empty and ends_with_empty_sequence(msg)
+                                   for c, (_, msg) in zip(channels, topics)):
+                for i in range(n):  # the per-message path (a trimmed tail, or an mcap without the internals)
+                    for (name, msg), a, c in zip(topics, arrays, channels):
+                        self._add_locked(c, msg, int(stamps[i]), a[i].tobytes())
+            else:
+                fast.add_block(channels, stamps, arrays)
+                for c in channels:
+                    c.sequence += n
+                    c.info.message_count += n
+                self._summary.note_stamp(int(stamps.min()))
+                self._summary.note_stamp(int(stamps.max()))
             self._dirty = True
             if time.monotonic() - self._last_flush_s >= self.flush_period_s:
                 self._flush_locked()
@@ -280,6 +403,17 @@ class BagWriter:
         self._channels[topic] = channel
         self._summary.topics.append(info)
         return channel
+
+    def _add_locked(self, channel: _Channel, msg: Any, stamp_ns: int, data: bytes) -> None:
+        if channel.may_end_empty:
+            data = trim_trailing_padding(channel.info.type, channel.schema, msg, data)
+        self._writer.add_message(
+            channel.channel_id, log_time=stamp_ns, data=data,
+            publish_time=stamp_ns, sequence=channel.sequence,
+        )
+        channel.sequence += 1
+        channel.info.message_count += 1
+        self._summary.note_stamp(stamp_ns)
 
     def _flush_locked(self) -> None:
         try:
