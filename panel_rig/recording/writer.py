@@ -12,6 +12,7 @@ from typing import Any, BinaryIO, Self
 
 import mcap
 import numpy as np
+from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
@@ -72,6 +73,19 @@ def _may_end_in_sequence(msg_class: type) -> bool:
         except (ImportError, AttributeError):
             return True
     return False
+
+
+class _PackedMessageIndex(MessageIndex):
+    """``mcap.records.MessageIndex`` writing its (log time, offset) pairs in one buffer (the same bytes;
+    ``MessageIndex.write`` packs them one integer at a time: ~4 us per recorded message)."""
+
+    def write(self, stream: Any) -> None:
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.records) * 16)
+        if self.records:
+            stream.write(np.array(self.records, dtype="<u8").tobytes())
+        stream.finish_record()
 
 
 class _McapInternals:
@@ -146,8 +160,11 @@ class _McapInternals:
             indices = chunk.message_indices
             for m in range(j, min(j + k_topics, stop)):  # channels in order of first appearance in the chunk
                 cid = channel_ids[m % k_topics]
-                if not indices.get(cid):
-                    indices[cid] = MessageIndex(channel_id=cid, records=[])
+                index = indices.get(cid)
+                if index is None:
+                    indices[cid] = _PackedMessageIndex(channel_id=cid, records=[])
+                elif type(index) is MessageIndex:  # same records, same place in the chunk's index order
+                    indices[cid] = _PackedMessageIndex(channel_id=cid, records=index.records)
             for k, cid in enumerate(channel_ids):
                 sel = slice((k - j) % k_topics, None, k_topics)
                 if seg_log[sel].size:
