@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import json
+import struct
 import threading
 import time
 from collections.abc import Sequence
@@ -114,25 +116,19 @@ class _McapInternals:
 
     def add_block(self, channels: Sequence[_Channel], stamps: np.ndarray, payloads: Sequence[np.ndarray]) -> None:
         n, k_topics = stamps.shape[0], len(channels)
-        names, formats, offsets, at = [], [], [], 0
-        for k, payload in enumerate(payloads):  # one sample's K records, packed
-            size = payload.shape[1]
-            for field, fmt, width in (("op", "u1", 1), ("len", "<u8", 8), ("ch", "<u2", 2), ("seq", "<u4", 4),
-                                      ("log", "<u8", 8), ("pub", "<u8", 8), ("data", ("u1", (size,)), size)):
-                names.append(f"{field}{k}")
-                formats.append(fmt)
-                offsets.append(at)
-                at += width
-        rows = np.empty(n, dtype=np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": at}))
+        layout = _row_layout(tuple(c.channel_id for c in channels), tuple(p.shape[1] for p in payloads))
+        template, at_seq, at_data, row_bytes = layout
+        raw = np.empty((n, row_bytes), dtype=np.uint8)  # one sample's K records per row
+        raw[:] = template  # opcodes, lengths, channel ids
+        stamp_bytes = stamps.astype("<u8").view(np.uint8).reshape(n, 8)
         for k, (c, payload) in enumerate(zip(channels, payloads)):
-            rows[f"op{k}"] = MESSAGE_OPCODE
-            rows[f"len{k}"] = MESSAGE_HEADER_BYTES + payload.shape[1]
-            rows[f"ch{k}"] = c.channel_id
-            rows[f"seq{k}"] = (c.sequence + np.arange(n)) & 0xFFFFFFFF
-            rows[f"log{k}"] = stamps
-            rows[f"pub{k}"] = stamps
-            rows[f"data{k}"] = payload
-        blob = rows.tobytes()
+            seq = ((c.sequence + np.arange(n)) & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
+            a = at_seq[k]
+            raw[:, a:a + 4] = seq
+            raw[:, a + 4:a + 12] = stamp_bytes  # log time
+            raw[:, a + 12:a + 20] = stamp_bytes  # publish time
+            raw[:, at_data[k]:at_data[k] + payload.shape[1]] = payload
+        blob = raw.tobytes()
         sizes = np.tile([9 + MESSAGE_HEADER_BYTES + p.shape[1] for p in payloads], n)
         ends = np.cumsum(sizes)  # end of message j in blob
         log = np.repeat(stamps, k_topics)
@@ -174,6 +170,20 @@ class _McapInternals:
             if chunk.record_writer.count > self.chunk_size:
                 self.finalize()
             j = stop
+
+
+@functools.lru_cache(maxsize=64)
+def _row_layout(channel_ids: tuple[int, ...], sizes: tuple[int, ...]) -> tuple[np.ndarray, list[int], list[int], int]:
+    """One sample's K MCAP Message records side by side: the constant bytes (opcode, record length, channel id),
+    the offsets of each record's sequence number (then log and publish time) and data, and the row length."""
+    parts, at_seq, at_data, at = [], [], [], 0
+    for cid, size in zip(channel_ids, sizes):
+        header = struct.pack("<BQHIQQ", MESSAGE_OPCODE, MESSAGE_HEADER_BYTES + size, cid, 0, 0, 0)
+        at_seq.append(at + 11)
+        at_data.append(at + len(header))
+        parts.append(header + bytes(size))
+        at += len(header) + size
+    return np.frombuffer(b"".join(parts), dtype=np.uint8), at_seq, at_data, at
 
 
 def _prepare_dir(bag_dir: Path) -> Path:

@@ -7,6 +7,7 @@ the steady clock. Fast mode (``fast: true``): steps as fast as possible, publish
 
 from __future__ import annotations
 
+import inspect
 import math
 import signal
 import sys
@@ -152,6 +153,11 @@ class RigNode(Node):
         self._diag_sim = self.rig.time_s
         self._next_shape_s = 0.0
         self._fast_next_s = self.rig.time_s
+        # a stepper that draws the shape of any sample's q lets fast mode march whole blocks past shape samples
+        try:
+            self._shape_of_q = "q" in inspect.signature(self.rig.stepper.shape_w_over_L).parameters
+        except (TypeError, ValueError, AttributeError):
+            self._shape_of_q = False
         self._pending: dict[str, Any] = {}
         self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
         self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -494,10 +500,12 @@ class RigNode(Node):
         self.publish_readings()
 
     def fast_iteration(self) -> None:
-        """Fast mode: march publish periods up to the next shape sample in one block, then publish them all."""
+        """Fast mode: march up to FAST_MAX_BLOCK_PERIODS publish periods in one block (up to the next shape sample
+        if the stepper cannot draw a sample's shape), then publish them all."""
         start = max(self._fast_next_s, self.rig.time_s)
-        periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1),
-                      1 if self._lockstep else FAST_MAX_BLOCK_PERIODS)  # a controller in lock-step: one period
+        periods = 1 if self._lockstep else FAST_MAX_BLOCK_PERIODS  # a controller in lock-step: one period
+        if not self._shape_of_q:  # the shape needs the stepper's own state: end the block at the next shape sample
+            periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
         counts, t = [], self.rig.time_s
         for k in range(1, periods + 1):
             target = start + k * self._publish_period_s
@@ -522,14 +530,22 @@ class RigNode(Node):
         pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
                 (self.pub_truth, msgs.truth))
         encoded_block = msgs.encode_block(block, self._stamp_offset_ns)
-        if encoded_block is not None:
-            self._publish_encoded(pubs, encoded_block)
-        else:
-            self._publish_each(pubs, block, recording)
-        t = float(block.time_s[-1])
-        if t >= self._next_shape_s - 1e-9:
-            self._next_shape_s = t + self._shape_period_s
-            self._publish_shape(t, block.state == ABORTED)
+        times, n, first = block.time_s, len(block), 0
+        while first < n:  # readings up to each shape sample, then that shape (the order of one block per shape)
+            due = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
+            if due < first:
+                due = first
+            last = min(due, n - 1) if self._shape_of_q else n - 1
+            part = slice(first, last + 1)
+            if encoded_block is not None:
+                self._publish_encoded(pubs, encoded_block.part(part))
+            else:
+                self._publish_each(pubs, block.part(part), recording)
+            t = float(times[last])
+            if t >= self._next_shape_s - 1e-9:
+                self._next_shape_s = t + self._shape_period_s
+                self._publish_shape(t, block.state == ABORTED, block.q[last] if self._shape_of_q else None)
+            first = last + 1
 
     def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
         """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
@@ -562,8 +578,8 @@ class RigNode(Node):
             if self.pub_clock is not None:
                 self.pub_clock.publish(msgs.clock_bytes(stamp_ns))
 
-    def _publish_shape(self, t: float, aborted: bool) -> None:
-        w = self.rig.shape_w_over_L(self._x_over_L)
+    def _publish_shape(self, t: float, aborted: bool, q: np.ndarray | None = None) -> None:
+        w = self.rig.shape_w_over_L(self._x_over_L, q)
         stamp = self._stamp_ns(t)
         z_m = np.asarray(w, dtype=float) * self.cfg.panel_length_m
         if self._shape_cdr.ok:  # the Marker's CDR from its template (serialize_message of 36 points: ~0.3 ms)
