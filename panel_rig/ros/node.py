@@ -48,7 +48,9 @@ NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 SHAPE_POINTS = 31
-FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics)
+FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics) ...
+FAST_SPIN_SHARE = 0.05  # ... at least; at most this share of the wall time in passes (one costs ~0.3-0.6 ms here)
+FAST_SPIN_MAX_PERIOD_S = 0.02  # ... and never less often than this
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
@@ -662,7 +664,8 @@ class RigNode(Node):
 
 def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
     """Run the node until ``should_stop()``: timers in real-time mode; in fast mode a stepping loop that
-    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time."""
+    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time, or less
+    often when a pass costs more than ``FAST_SPIN_SHARE`` of that (at least every ``FAST_SPIN_MAX_PERIOD_S``)."""
     next_spin = 0.0
     pace_wall, pace_sim = time.monotonic(), node.rig.time_s
     while not should_stop() and rclpy.ok(context=node.context):
@@ -685,7 +688,8 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
             next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
         elif now >= next_spin:
             executor.spin_once(timeout_sec=0.0)
-            next_spin = now + FAST_SPIN_PERIOD_S
+            cost = time.monotonic() - now  # rclpy rebuilds the wait set each pass: keep its share of the wall bounded
+            next_spin = now + min(max(FAST_SPIN_PERIOD_S, cost / FAST_SPIN_SHARE), FAST_SPIN_MAX_PERIOD_S)
 
 
 def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
