@@ -503,10 +503,12 @@ class RigNode(Node):
 
     def fast_iteration(self) -> None:
         """Fast mode: march up to FAST_MAX_BLOCK_PERIODS publish periods in one block (up to the next shape sample
-        if the stepper cannot draw a sample's shape), then publish them all."""
+        if the stepper cannot draw a sample's shape or the readings have subscribers), then publish them all."""
         start = max(self._fast_next_s, self.rig.time_s)
         periods = 1 if self._lockstep else FAST_MAX_BLOCK_PERIODS  # a controller in lock-step: one period
-        if not self._shape_of_q:  # the shape needs the stepper's own state: end the block at the next shape sample
+        # blocks end at the next shape sample if the shape needs the stepper's own state, and while anyone subscribes
+        # to the readings: a best-effort subscriber (depth 5) keeps up with bursts of ~17 periods, not of 64
+        if not self._shape_of_q or self._readings_subscribed():
             periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
         counts, t = [], self.rig.time_s
         for k in range(1, periods + 1):
@@ -516,6 +518,10 @@ class RigNode(Node):
             t += n * self.dt_s
         self._fast_next_s = start + periods * self._publish_period_s
         self._publish_block(self.rig.advance_samples(counts))
+
+    def _readings_subscribed(self) -> bool:
+        pubs = (self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_clock)
+        return any(pub is not None and pub.get_subscription_count() for pub in pubs)
 
     def publish_readings(self) -> Reading:
         """The current reading to topics and sinks (real-time tick); the shape at its own rate."""
