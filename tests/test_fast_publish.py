@@ -186,3 +186,61 @@ def test_shape_of_a_sample_q_is_the_shape_of_that_state(variant: str) -> None:
         st.step(11.0, 2.0)
     np.testing.assert_array_equal(st.shape_w_over_L(x, q=q), own)  # of q, not of the present state
     assert not np.array_equal(st.shape_w_over_L(x), own)
+
+
+def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: Path) -> None:
+    """In-process fast node, recording, no subscribers (64-period blocks): the bag holds every reading once, in
+    order, and a panel_shape every 1/30 s whose trailing-edge z is the truth reading at its stamp."""
+    import os
+    import random
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode, spin
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.randint(201, 230))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
+        Parameter("bag_dir", value=str(tmp_path)), Parameter("tunnel.time_constant_s", value=0.2)])
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        node.rig.command_force(0.5)
+        node.rig.command_airspeed(8.0)
+        blocks: list[int] = []
+        march = node.rig.advance_samples
+        node.rig.advance_samples = lambda counts: (blocks.append(len(counts)), march(counts))[1]  # type: ignore
+        spin(node, executor, lambda: node.rig.time_s > 3.0)
+        executor.shutdown()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert max(blocks) == FAST_MAX_BLOCK_PERIODS  # marched past the 30 Hz shape samples
+    mcap = next(tmp_path.glob("*/*.mcap"))
+    by_topic: dict[str, list] = {}
+    with open(mcap, "rb") as f:
+        for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]) \
+                .iter_decoded_messages(log_time_order=False):
+            by_topic.setdefault(channel.topic, []).append((message.log_time, decoded))
+    truth = dict(by_topic["/tip_displacement/truth"])
+    tip_stamps = [t for t, _ in by_topic["/tip_displacement"]]
+    assert tip_stamps == sorted(tip_stamps) and len(set(tip_stamps)) == len(tip_stamps)
+    steps = np.diff(tip_stamps) / (1e9 / 2048)  # readings at whole physics steps, 500 per simulated second
+    assert np.all(np.abs(steps - np.round(steps)) < 1e-3) and set(np.round(steps).astype(int)) <= {4, 5}
+    assert len(tip_stamps) == pytest.approx(500 * tip_stamps[-1] * 1e-9, abs=2)
+    for topic in ("/modal_states", "/airspeed", "/tip_displacement/truth"):
+        assert [t for t, _ in by_topic[topic]] == tip_stamps
+    shapes = by_topic["/panel_shape"]
+    assert len(shapes) == pytest.approx(30 * tip_stamps[-1] * 1e-9, abs=2)
+    assert np.all(np.abs(np.diff([t for t, _ in shapes]) - 1e9 / 30) <= 2_000_001)  # within one reading
+    moving = 0
+    for stamp, marker in shapes:
+        z_tip = marker.points[-1].z
+        assert z_tip == pytest.approx(truth[stamp].point.z, rel=1e-9, abs=1e-12)
+        moving += abs(z_tip) > 1e-6
+    assert moving > len(shapes) // 2
