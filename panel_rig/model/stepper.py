@@ -15,7 +15,7 @@ import numpy as np
 from panel_rig.config import PanelConfig
 from panel_rig.model import kernel
 from panel_rig.model.aeroelastic import AeroelasticModel
-from panel_rig.model.elastica import exact_kinematics
+from panel_rig.model.elastica import exact_kinematics, shape_sampler
 from panel_rig.model.elastica import shape as exact_shape
 from panel_rig.model.kernel_exact import exact_tip
 from panel_rig.model.options import AERO_MODELS, EXACT_VARIANT, SCHEMES, VARIANTS
@@ -128,6 +128,7 @@ class Stepper:
         self._tip_vec = mode_shapes(s.n_modes, np.array([1.0]))[:, 0]
         m = self.mats
         self.exact = variant == EXACT_VARIANT
+        self._shape_basis: dict[tuple[float, ...], np.ndarray] = {}  # stations x/L -> phi_m(x/L) (shape_w_over_L)
         kin = exact_kinematics(s.n_modes) if self.exact else None
         self._kin = kin
         self.kernel_model = kernel.KernelModel(
@@ -203,12 +204,21 @@ class Stepper:
             return float(exact_tip(self.q, self._kin.psi, self._kin.quad.w))
         return float(self._tip_vec @ self.q)
 
-    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
+    def shape_w_over_L(self, x_over_L: np.ndarray, q: np.ndarray | None = None) -> np.ndarray:
         """w/L along the panel at x/L (exact: at arc length s = x/L of the undeformed panel; the point's
-        chordwise position is then :meth:`shape_xw_over_L`)."""
-        if self.exact:
-            return exact_shape(self.q, np.asarray(x_over_L, dtype=float))[1]
-        return self.q @ mode_shapes(self.n_modes, np.asarray(x_over_L, dtype=float))
+        chordwise position is then :meth:`shape_xw_over_L`); of the present state, or of modal coordinates
+        ``q`` (e.g. a sample of a marched block)."""
+        q = self.q if q is None else np.asarray(q, dtype=float)
+        x = np.asarray(x_over_L, dtype=float)
+        if x.ndim != 1:
+            return exact_shape(q, x)[1] if self.exact else q @ mode_shapes(self.n_modes, x)
+        key = tuple(x.tolist())
+        if self.exact:  # the precomputed sampler of the same shape (the live rig draws it ~1000 times/s)
+            return shape_sampler(self.n_modes, key)(q)[1]
+        basis = self._shape_basis.get(key)
+        if basis is None:
+            basis = self._shape_basis[key] = mode_shapes(self.n_modes, x)
+        return q @ basis
 
     def shape_xw_over_L(self, s_over_L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(x/L, w/L) of the material points at arc length s/L (cubic variants: x = s - 1/2 int w'^2 is not

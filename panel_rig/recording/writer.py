@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import functools
 import json
+import struct
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, Self
 
 import mcap
+import numpy as np
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.writer import CompressionType, Writer
 
 from panel_rig.recording import schemas
-from panel_rig.recording.cdr import trim_trailing_padding
+from panel_rig.recording.cdr import ends_with_empty_sequence, trim_trailing_padding
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import (
     BagSummary,
@@ -26,6 +32,8 @@ from panel_rig.recording.qos import offered_qos, qos_yaml
 PROFILE = "ros2"
 LIBRARY = f"panel_rig recorder (rosbag2-compatible); mcap-python {mcap.__version__}"
 MESSAGE_ENCODING = "cdr"
+MESSAGE_OPCODE = 0x05  # MCAP Message record: opcode u8, length u64, channel u16, sequence u32, log u64, publish u64
+MESSAGE_HEADER_BYTES = 22  # channel id + sequence + log time + publish time
 PARAMETERS_RECORD = "panel_rig/parameters"
 PARAMETERS_KEY = "panel_rig.parameters"
 
@@ -67,6 +75,115 @@ def _may_end_in_sequence(msg_class: type) -> bool:
         except (ImportError, AttributeError):
             return True
     return False
+
+
+class _PackedMessageIndex(MessageIndex):
+    """``mcap.records.MessageIndex`` writing its (log time, offset) pairs in one buffer (the same bytes;
+    ``MessageIndex.write`` packs them one integer at a time: ~4 us per recorded message)."""
+
+    def write(self, stream: Any) -> None:
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(self.records) * 16)
+        if self.records:
+            stream.write(np.array(self.records, dtype="<u8").tobytes())
+        stream.finish_record()
+
+
+class _McapInternals:
+    """Block writes into an ``mcap.writer.Writer``'s open chunk: the Message records of N samples built with
+    numpy and appended as one buffer, with the chunk's message index, times and the file statistics updated
+    exactly as ``Writer.add_message`` does per message (chunks are closed at the same message). Uses the
+    writer's private fields (mcap-python 1.5-1.6); :meth:`of` returns None when they are not there, and the
+    caller writes message by message."""
+
+    __slots__ = ("writer", "chunk", "stats", "chunk_size", "finalize")
+
+    def __init__(self, writer: Writer, chunk: Any, stats: Any, chunk_size: int, finalize: Any) -> None:
+        self.writer, self.chunk, self.stats, self.chunk_size, self.finalize = writer, chunk, stats, chunk_size, finalize
+
+    @staticmethod
+    def of(writer: Writer) -> _McapInternals | None:
+        chunk = getattr(writer, "_Writer__chunk_builder", None)
+        stats = getattr(writer, "_Writer__statistics", None)
+        size = getattr(writer, "_Writer__chunk_size", None)
+        finalize = getattr(writer, "_Writer__finalize_chunk", None)
+        needed = ("message_indices", "record_writer", "num_messages", "message_start_time", "message_end_time")
+        if chunk is None or stats is None or not isinstance(size, int) or finalize is None or \
+                not all(hasattr(chunk, a) for a in needed) or not hasattr(stats, "channel_message_counts"):
+            return None
+        return _McapInternals(writer, chunk, stats, size, finalize)
+
+    def add_block(self, channels: Sequence[_Channel], stamps: np.ndarray, payloads: Sequence[np.ndarray]) -> None:
+        n, k_topics = stamps.shape[0], len(channels)
+        layout = _row_layout(tuple(c.channel_id for c in channels), tuple(p.shape[1] for p in payloads))
+        template, at_seq, at_data, row_bytes = layout
+        raw = np.empty((n, row_bytes), dtype=np.uint8)  # one sample's K records per row
+        raw[:] = template  # opcodes, lengths, channel ids
+        stamp_bytes = stamps.astype("<u8").view(np.uint8).reshape(n, 8)
+        for k, (c, payload) in enumerate(zip(channels, payloads)):
+            seq = ((c.sequence + np.arange(n)) & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
+            a = at_seq[k]
+            raw[:, a:a + 4] = seq
+            raw[:, a + 4:a + 12] = stamp_bytes  # log time
+            raw[:, a + 12:a + 20] = stamp_bytes  # publish time
+            raw[:, at_data[k]:at_data[k] + payload.shape[1]] = payload
+        blob = raw.tobytes()
+        sizes = np.tile([9 + MESSAGE_HEADER_BYTES + p.shape[1] for p in payloads], n)
+        ends = np.cumsum(sizes)  # end of message j in blob
+        log = np.repeat(stamps, k_topics)
+        channel_ids = [c.channel_id for c in channels]
+        stats = self.stats
+        for k, cid in enumerate(channel_ids):
+            stats.channel_message_counts[cid] += n
+        first, last = int(stamps.min()), int(stamps.max())
+        stats.message_start_time = first if stats.message_count == 0 else min(stats.message_start_time, first)
+        stats.message_end_time = max(stats.message_end_time, last)
+        stats.message_count += n * k_topics
+        j, total = 0, n * k_topics
+        while j < total:
+            chunk = self.chunk
+            base = chunk.record_writer.count
+            start = int(ends[j - 1]) if j else 0
+            # the chunk closes after the first message that takes it over chunk_size (Writer.__maybe_finalize_chunk)
+            over = int(np.searchsorted(ends, start + self.chunk_size - base, side="right"))
+            stop = min(max(over + 1, j + 1), total)
+            seg_log = log[j:stop]
+            lo, hi = int(seg_log.min()), int(seg_log.max())
+            chunk.message_start_time = lo if chunk.num_messages == 0 else min(chunk.message_start_time, lo)
+            chunk.message_end_time = max(chunk.message_end_time, hi)
+            offsets_in_chunk = (base - start) + np.concatenate(([start], ends[j:stop - 1]))
+            indices = chunk.message_indices
+            for m in range(j, min(j + k_topics, stop)):  # channels in order of first appearance in the chunk
+                cid = channel_ids[m % k_topics]
+                index = indices.get(cid)
+                if index is None:
+                    indices[cid] = _PackedMessageIndex(channel_id=cid, records=[])
+                elif type(index) is MessageIndex:  # same records, same place in the chunk's index order
+                    indices[cid] = _PackedMessageIndex(channel_id=cid, records=index.records)
+            for k, cid in enumerate(channel_ids):
+                sel = slice((k - j) % k_topics, None, k_topics)
+                if seg_log[sel].size:
+                    indices[cid].records.extend(zip(seg_log[sel].tolist(), offsets_in_chunk[sel].tolist()))
+            chunk.num_messages += stop - j
+            chunk.record_writer.write(blob[start:int(ends[stop - 1])])
+            if chunk.record_writer.count > self.chunk_size:
+                self.finalize()
+            j = stop
+
+
+@functools.lru_cache(maxsize=64)
+def _row_layout(channel_ids: tuple[int, ...], sizes: tuple[int, ...]) -> tuple[np.ndarray, list[int], list[int], int]:
+    """One sample's K MCAP Message records side by side: the constant bytes (opcode, record length, channel id),
+    the offsets of each record's sequence number (then log and publish time) and data, and the row length."""
+    parts, at_seq, at_data, at = [], [], [], 0
+    for cid, size in zip(channel_ids, sizes):
+        header = struct.pack("<BQHIQQ", MESSAGE_OPCODE, MESSAGE_HEADER_BYTES + size, cid, 0, 0, 0)
+        at_seq.append(at + 11)
+        at_data.append(at + len(header))
+        parts.append(header + bytes(size))
+        at += len(header) + size
+    return np.frombuffer(b"".join(parts), dtype=np.uint8), at_seq, at_data, at
 
 
 def _prepare_dir(bag_dir: Path) -> Path:
@@ -155,16 +272,49 @@ class BagWriter:
                 self.dropped_after_close += 1
                 return False
             channel = self._channel(topic, msg, qos)
-            data = _serialize(msg) if data is None else data
-            if channel.may_end_empty:
-                data = trim_trailing_padding(channel.info.type, channel.schema, msg, data)
-            self._writer.add_message(
-                channel.channel_id, log_time=stamp_ns, data=data,
-                publish_time=stamp_ns, sequence=channel.sequence,
-            )
-            channel.sequence += 1
-            channel.info.message_count += 1
-            self._summary.note_stamp(stamp_ns)
+            self._add_locked(channel, msg, stamp_ns, _serialize(msg) if data is None else data)
+            self._dirty = True
+            if time.monotonic() - self._last_flush_s >= self.flush_period_s:
+                self._flush_locked()
+        return True
+
+    def write_block(self, topics: Sequence[tuple[str, Any]], stamps_ns: np.ndarray, payloads: Sequence[np.ndarray],
+                    *, qos: str = "sensor") -> bool:
+        """Record N samples of several fixed-size topics at once: for each sample i, for each topic k in order,
+        the message ``payloads[k][i]`` (an (N, size_k) uint8 array of CDR) on ``topics[k] = (name, msg)``
+        (``msg`` gives the type) at ``stamps_ns[i]``. The bag is byte for byte what ``write`` called per
+        message in that order gives (same records, sequence numbers, chunk boundaries and indexes), but the
+        MCAP records are built with numpy. False if closed."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        n, k_topics = stamps.shape[0], len(topics)
+        arrays = [np.asarray(p) for p in payloads]
+        if len(arrays) != k_topics or any(a.ndim != 2 or a.dtype != np.uint8 or a.shape[0] != n for a in arrays):
+            raise RecordingError("write_block: one (N, size) uint8 payload array per topic expected")
+        for name, _ in topics:
+            if not isinstance(name, str) or not name.startswith("/") or len(name) < 2:
+                raise RecordingError(f"topic must be an absolute ROS name like '/rig/x', got {name!r}")
+        if n and int(stamps.min()) < 0:
+            raise RecordingError("stamp_ns must be non-negative")
+        with self._critical():
+            if self._closed:
+                self.dropped_after_close += n * k_topics
+                return False
+            if not n:
+                return True
+            channels = [self._channel(name, msg, qos) for name, msg in topics]
+            fast = _McapInternals.of(self._writer)
+            if fast is None or any(c.may_end_empty and ends_with_empty_sequence(msg)
+                                   for c, (_, msg) in zip(channels, topics)):
+                for i in range(n):  # the per-message path (a trimmed tail, or an mcap without the internals)
+                    for (name, msg), a, c in zip(topics, arrays, channels):
+                        self._add_locked(c, msg, int(stamps[i]), a[i].tobytes())
+            else:
+                fast.add_block(channels, stamps, arrays)
+                for c in channels:
+                    c.sequence += n
+                    c.info.message_count += n
+                self._summary.note_stamp(int(stamps.min()))
+                self._summary.note_stamp(int(stamps.max()))
             self._dirty = True
             if time.monotonic() - self._last_flush_s >= self.flush_period_s:
                 self._flush_locked()
@@ -280,6 +430,17 @@ class BagWriter:
         self._channels[topic] = channel
         self._summary.topics.append(info)
         return channel
+
+    def _add_locked(self, channel: _Channel, msg: Any, stamp_ns: int, data: bytes) -> None:
+        if channel.may_end_empty:
+            data = trim_trailing_padding(channel.info.type, channel.schema, msg, data)
+        self._writer.add_message(
+            channel.channel_id, log_time=stamp_ns, data=data,
+            publish_time=stamp_ns, sequence=channel.sequence,
+        )
+        channel.sequence += 1
+        channel.info.message_count += 1
+        self._summary.note_stamp(stamp_ns)
 
     def _flush_locked(self) -> None:
         try:

@@ -424,9 +424,13 @@ class Rig:
             state=self.state,
         )
 
-    def shape_w_over_L(self, x_over_L: np.ndarray) -> np.ndarray:
-        """Panel deflection w/L at the given x/L (0 = clamped edge, 1 = trailing edge)."""
-        return np.asarray(self.stepper.shape_w_over_L(np.asarray(x_over_L, dtype=float)), dtype=float)
+    def shape_w_over_L(self, x_over_L: np.ndarray, q: np.ndarray | None = None) -> np.ndarray:
+        """Panel deflection w/L at the given x/L (0 = clamped edge, 1 = trailing edge); of the present state, or
+        of the modal coordinates ``q`` of a sample (steppers whose ``shape_w_over_L`` takes ``q``)."""
+        x = np.asarray(x_over_L, dtype=float)
+        if q is None:
+            return np.asarray(self.stepper.shape_w_over_L(x), dtype=float)
+        return np.asarray(self.stepper.shape_w_over_L(x, q=q), dtype=float)  # type: ignore[call-arg]
 
     def emit(self) -> Reading:
         """Take a reading and hand it to every sink; a failing sink is logged and counted, never fatal."""

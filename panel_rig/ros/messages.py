@@ -42,6 +42,37 @@ def _finite(values: np.ndarray) -> list[float]:
     return np.where(np.isfinite(arr), arr, 0.0).tolist()
 
 
+def _finite_array(values: Any) -> np.ndarray:
+    """As :func:`_finite`, as a float64 array."""
+    arr = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(arr), arr, 0.0)
+
+
+class EncodedBlock:
+    """A block of readings in CDR: ``stamps_ns`` (N,) int64 and, per reading topic, an (N, size) uint8 array
+    (row i = the message of sample i); ``clock`` the /clock messages likewise."""
+
+    __slots__ = ("stamps_ns", "payloads", "clock")
+
+    def __init__(self, stamps_ns: np.ndarray, payloads: tuple[np.ndarray, ...], clock: np.ndarray) -> None:
+        self.stamps_ns, self.payloads, self.clock = stamps_ns, payloads, clock
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+    def part(self, index: slice) -> EncodedBlock:
+        """Samples ``index`` (a view)."""
+        if index.start in (0, None) and (index.stop is None or index.stop >= len(self)):
+            return self
+        return EncodedBlock(self.stamps_ns[index], tuple(p[index] for p in self.payloads), self.clock[index])
+
+    @staticmethod
+    def rows(payload: np.ndarray) -> list[bytes]:
+        """The messages of one topic as ``bytes`` (for ``Publisher.publish``)."""
+        data, size = payload.tobytes(), payload.shape[1]
+        return [data[i:i + size] for i in range(0, len(data), size)]
+
+
 def _f(x: float) -> float:
     return float(x) if math.isfinite(x) else 0.0
 
@@ -161,6 +192,26 @@ class ReadingMessages:
             air.vector.x = airspeed[i]
             yield ns, serialize_message(tip), serialize_message(modal), serialize_message(air), serialize_message(truth)
 
+    def encode_block(self, block: ReadingBlock, offset_ns: int = 0) -> EncodedBlock | None:
+        """As :meth:`encode`, for the whole block at once with numpy (no per-sample Python): the stamps and,
+        per topic (tip_displacement, modal_states, airspeed, tip_displacement/truth, then /clock), an (N, size)
+        uint8 array whose row i is the CDR message of sample i, byte for byte what :meth:`encode` and
+        :meth:`clock_bytes` give. None if the layouts are not fixed (no templates: use :meth:`encode`)."""
+        if not (self.templated and self._clock_tpl.ok):
+            return None
+        t = np.asarray(block.time_s, dtype=float)
+        ns = np.maximum(np.rint(t * 1e9), 0.0).astype(np.int64) + np.int64(offset_ns)  # = stamp_ns(t) + offset
+        sec, nanosec = np.divmod(ns, 1_000_000_000)
+        t_tip, t_modal, t_air = self._tpl
+        tip = t_tip.pack_block(sec, nanosec, [_finite_array(block.tip_w_m)])
+        modal = t_modal.pack_block(sec, nanosec, [_finite_array(block.q), _finite_array(block.qdot_per_s),
+                                                  _finite_array(block.aero_force_npm)])
+        air = t_air.pack_block(sec, nanosec, [_finite_array(block.airspeed_mps)])
+        truth = t_tip.pack_block(sec, nanosec, [_finite_array(np.asarray(block.tip_w_over_L, dtype=float)
+                                                              * self.panel_length_m)])
+        clock = self._clock_tpl.pack_block(sec, nanosec, [])
+        return EncodedBlock(ns, (tip, modal, air, truth), clock)
+
     def clock_bytes(self, stamp_ns: int) -> bytes | Clock:
         """/clock at this stamp: CDR bytes (or the refilled message if no template)."""
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -195,6 +246,72 @@ class ReadingMessages:
         return m
 
 
+class ShapeCdr:
+    """The panel_shape Marker of :func:`shape_msg` in CDR without rclpy serialising ~36 Points and ColorRGBAs
+    (~0.2-0.5 ms): one template per colour (running / aborted), found by serialising probe values once; a
+    call writes the stamp and the panel points' z into it. The template is checked once (decoded) against
+    ``serialize_message``; :attr:`ok` False means the caller must serialise the message."""
+
+    def __init__(self, airfoil_length_m: float, panel_length_m: float, x_over_L: np.ndarray) -> None:
+        self.airfoil_length_m, self.panel_length_m = float(airfoil_length_m), float(panel_length_m)
+        self.x_over_L = np.asarray(x_over_L, dtype=float).copy()
+        n = self.x_over_L.size
+        self.ok = False
+        try:
+            self._templates = {aborted: self._probe(aborted, n) for aborted in (False, True)}
+            self.ok = all(t is not None for t in self._templates.values()) and self._check(n)
+        except Exception:  # noqa: BLE001 (no template: plain serialisation)
+            self.ok = False
+
+    def _msg(self, stamp_ns: int, z_m: np.ndarray, aborted: bool) -> Marker:
+        return shape_msg(stamp_ns, self.airfoil_length_m, self.panel_length_m, np.asarray(z_m) / self.panel_length_m,
+                         self.x_over_L, aborted)
+
+    def _probe(self, aborted: bool, n: int) -> tuple[bytearray, int, int, int, Marker] | None:
+        from rclpy.serialization import serialize_message
+
+        probes = np.array([1.2345678901234567e-300 * (k + 3) for k in range(n)])
+        sec, nanosec = _SENTINEL_INTS[0], _SENTINEL_INTS[1] % 1_000_000_000  # a valid stamp (nanosec < 1e9)
+        msg = self._msg(sec * 1_000_000_000 + nanosec, probes, aborted)  # z = w/L * L may round: set the probes exactly
+        for pt, z in zip(msg.points[len(msg.points) - n:], probes):
+            pt.z = float(z)
+        data = bytes(serialize_message(msg))
+        if data[:2] != b"\x00\x01":  # little-endian CDR only
+            return None
+        stamp_at = data.find(struct.pack("<iI", sec, nanosec))
+        at = [data.find(struct.pack("<d", z)) for z in probes]
+        stride = at[1] - at[0] if n > 1 else 8
+        if stamp_at < 0 or min(at) < 0 or any(b - a != stride for a, b in zip(at, at[1:])):
+            return None
+        return bytearray(data), stamp_at, at[0], stride, msg
+
+    def _check(self, n: int) -> bool:
+        from rclpy.serialization import deserialize_message, serialize_message
+
+        z = np.linspace(-0.25, 0.5, n) * self.panel_length_m
+        for aborted in (False, True):
+            expected = self._msg(12345 * 1_000_000_000 + 678901234, z, aborted)
+            for pt, zk in zip(expected.points[len(expected.points) - n:], z):
+                pt.z = float(zk)
+            wire = deserialize_message(serialize_message(expected), Marker)  # float32 colours as on the wire
+            if deserialize_message(self.pack(12345 * 1_000_000_000 + 678901234, z, aborted), Marker) != wire:
+                return False
+        return True
+
+    def message(self, aborted: bool) -> Marker:
+        """A Marker of the template's type and layout (for recorders: the type of the bytes)."""
+        return self._templates[aborted][4]
+
+    def pack(self, stamp_ns: int, z_m: np.ndarray, aborted: bool) -> bytes:
+        """CDR of the shape Marker at ``stamp_ns`` with panel points' z = ``z_m`` (m; non-finite -> 0)."""
+        buf, stamp_at, first, stride, _ = self._templates[aborted]
+        struct.pack_into("<iI", buf, stamp_at, *divmod(stamp_ns, 1_000_000_000))
+        z = np.asarray(z_m, dtype=float)
+        view = np.ndarray((z.size,), dtype="<f8", buffer=buf, offset=first, strides=(stride,))
+        view[:] = np.where(np.isfinite(z), z, 0.0)
+        return bytes(buf)
+
+
 _SENTINEL_INTS = (0x5A3B1C2D, 0x6B2C3D4E)
 
 
@@ -203,7 +320,9 @@ class CdrTemplate:
     stamp and some float64 fields into a template of its CDR bytes: ~1 us instead of ~4.5 us.
 
     The offsets are found by serialising probe values with rclpy and are checked once against
-    ``serialize_message``; if anything does not match, :attr:`ok` is False and the caller must serialise.
+    ``serialize_message`` (the decoded message; rclpy leaves alignment padding uninitialised, so the raw bytes
+    may differ there); if anything does not match, :attr:`ok` is False and the caller must serialise.
+    :meth:`pack_block` fills N messages at once with numpy.
     """
 
     def __init__(self, msg: Any, stamp_of: Callable[[Any], Any], doubles: Sequence[Callable[[Any, list[float]], None]],
@@ -240,9 +359,16 @@ class CdrTemplate:
         return stamp_at, starts
 
     def _check(self) -> bool:
+        """The template's bytes decode to the message rclpy serialises (decoded, not byte for byte: rclpy leaves
+        CDR alignment padding uninitialised, e.g. after an odd-length frame_id, so raw bytes may differ there)."""
+        from rclpy.serialization import deserialize_message
+
         values = [[0.5 + 0.25 * k - i for k in range(n)] for i, n in enumerate(self._counts)]
         self._fill_msg(12345, 678901234, values)
-        return self.pack(12345, 678901234, values) == bytes(self._serialize(self.msg))
+        packed = self.pack(12345, 678901234, values)
+        wire = bytes(self._serialize(self.msg))
+        return len(packed) == len(wire) and \
+            deserialize_message(packed, type(self.msg)) == deserialize_message(wire, type(self.msg))
 
     def pack(self, sec: int, nanosec: int, values: Sequence[Sequence[float]]) -> bytes:
         """The CDR bytes of the message with this stamp and these float64 values (one list per field)."""
@@ -252,3 +378,35 @@ class CdrTemplate:
         for fmt, at, v in zip(self._formats, starts, values):
             fmt.pack_into(buf, at, *v)
         return bytes(buf)
+
+    @property
+    def size(self) -> int:
+        """Bytes of one message (the layout is fixed)."""
+        return len(self._template)
+
+    def _block_dtype(self) -> np.dtype:
+        """A structured dtype over the template: ``sec``, ``nanosec`` and ``v0``, ``v1``, ... (float64 fields)
+        at their CDR offsets (unaligned, little-endian), itemsize = the message size."""
+        dtype = getattr(self, "_dtype", None)
+        if dtype is None:
+            stamp_at, starts = self._offsets
+            names, formats, offsets = ["sec", "nanosec"], ["<i4", "<u4"], [stamp_at, stamp_at + 4]
+            for k, (at, n) in enumerate(zip(starts, self._counts)):
+                names.append(f"v{k}")
+                formats.append(("<f8", (n,)))
+                offsets.append(at)
+            dtype = self._dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
+                                            "itemsize": self.size})
+        return dtype
+
+    def pack_block(self, sec: np.ndarray, nanosec: np.ndarray, values: Sequence[np.ndarray]) -> np.ndarray:
+        """N messages at once: the same bytes as :meth:`pack` for each row, as an (N, size) uint8 array
+        (row i is message i). ``values[k]`` has shape (N, n_k) (or (N,) for n_k = 1)."""
+        n = len(sec)
+        out = np.empty(n, dtype=self._block_dtype())
+        raw = out.view(np.uint8).reshape(n, self.size)
+        raw[:] = np.frombuffer(self._template, dtype=np.uint8)
+        out["sec"], out["nanosec"] = sec, nanosec
+        for k, (v, count) in enumerate(zip(values, self._counts)):
+            out[f"v{k}"] = np.asarray(v, dtype=float).reshape(n, count)
+        return raw

@@ -7,6 +7,7 @@ the steady clock. Fast mode (``fast: true``): steps as fast as possible, publish
 
 from __future__ import annotations
 
+import inspect
 import math
 import signal
 import sys
@@ -47,7 +48,9 @@ NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 SHAPE_POINTS = 31
-FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics)
+FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics) ...
+FAST_SPIN_SHARE = 0.05  # ... at least; at most this share of the wall time in passes (one costs ~0.3-0.6 ms here)
+FAST_SPIN_MAX_PERIOD_S = 0.02  # ... and never less often than this
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
 HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
@@ -88,6 +91,7 @@ class RigNode(Node):
             stepper.step(0.0, 0.0)
             if callable(getattr(stepper, "advance_sampled", None)):
                 stepper.advance_sampled(np.zeros(2), np.zeros(2), np.array([1, 2]))
+            stepper.shape_w_over_L(np.linspace(0.0, 1.0, SHAPE_POINTS))  # builds its cached basis / sampler
             stepper.reset()
         except Exception as exc:
             raise StartupError(f"the model fails its first step ({type(exc).__name__}: {exc})") from exc
@@ -118,6 +122,10 @@ class RigNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
         self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
+        self._shape_cdr = messages.ShapeCdr(self.cfg.airfoil_length_m, self.cfg.panel_length_m, self._x_over_L)
+        marker = messages.shape_msg(0, self.cfg.airfoil_length_m, self.cfg.panel_length_m, np.zeros(SHAPE_POINTS),
+                                    self._x_over_L)
+        self._shape_x_m = np.array([pt.x for pt in marker.points])  # the Rerun strip: airfoil, then the panel
         self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
                                                                         self.pub_shape, self.pub_diag, self.pub_truth)}
         if self._flutter_monitor is not None:  # created with the sinks: recorded under its full name too
@@ -150,6 +158,11 @@ class RigNode(Node):
         self._diag_sim = self.rig.time_s
         self._next_shape_s = 0.0
         self._fast_next_s = self.rig.time_s
+        # a stepper that draws the shape of any sample's q lets fast mode march whole blocks past shape samples
+        try:
+            self._shape_of_q = "q" in inspect.signature(self.rig.stepper.shape_w_over_L).parameters
+        except (TypeError, ValueError, AttributeError):
+            self._shape_of_q = False
         self._pending: dict[str, Any] = {}
         self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
         self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -520,10 +533,14 @@ class RigNode(Node):
         self.publish_readings()
 
     def fast_iteration(self) -> None:
-        """Fast mode: march publish periods up to the next shape sample in one block, then publish them all."""
+        """Fast mode: march up to FAST_MAX_BLOCK_PERIODS publish periods in one block (up to the next shape sample
+        if the stepper cannot draw a sample's shape or the readings have subscribers), then publish them all."""
         start = max(self._fast_next_s, self.rig.time_s)
-        periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1),
-                      1 if self._lockstep else FAST_MAX_BLOCK_PERIODS)  # a controller in lock-step: one period
+        periods = 1 if self._lockstep else FAST_MAX_BLOCK_PERIODS  # a controller in lock-step: one period
+        # blocks end at the next shape sample if the shape needs the stepper's own state, and while anyone subscribes
+        # to the readings: a best-effort subscriber (depth 5) keeps up with bursts of ~17 periods, not of 64
+        if not self._shape_of_q or self._readings_subscribed():
+            periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
         counts, t = [], self.rig.time_s
         for k in range(1, periods + 1):
             target = start + k * self._publish_period_s
@@ -532,6 +549,10 @@ class RigNode(Node):
             t += n * self.dt_s
         self._fast_next_s = start + periods * self._publish_period_s
         self._publish_block(self.rig.advance_samples(counts))
+
+    def _readings_subscribed(self) -> bool:
+        pubs = (self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_clock)
+        return any(pub is not None and pub.get_subscription_count() for pub in pubs)
 
     def publish_readings(self) -> Reading:
         """The current reading to topics and sinks (real-time tick); the shape at its own rate."""
@@ -547,6 +568,46 @@ class RigNode(Node):
         msgs, recording = self._msgs, bool(self._recorders)
         pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
                 (self.pub_truth, msgs.truth))
+        encoded_block = msgs.encode_block(block, self._stamp_offset_ns)
+        times, n, first = block.time_s, len(block), 0
+        while first < n:  # readings up to each shape sample, then that shape (the order of one block per shape)
+            due = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
+            if due < first:
+                due = first
+            last = min(due, n - 1) if self._shape_of_q else n - 1
+            part = slice(first, last + 1)
+            if encoded_block is not None:
+                self._publish_encoded(pubs, encoded_block.part(part))
+            else:
+                self._publish_each(pubs, block.part(part), recording)
+            t = float(times[last])
+            if t >= self._next_shape_s - 1e-9:
+                self._next_shape_s = t + self._shape_period_s
+                self._publish_shape(t, block.state == ABORTED, block.q[last] if self._shape_of_q else None)
+            first = last + 1
+
+    def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
+        """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
+        messages (sample by sample, topics in the same order as before) if anyone subscribes to it: with no
+        matched subscription (best-effort/volatile sensor QoS; /clock volatile) a publish reaches nobody."""
+        for rec in self._recorders:
+            try:
+                rec.write_block([(self._full[pub], msg) for pub, msg in pubs], enc.stamps_ns, enc.payloads)
+            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
+                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        streams = [(pub.publish, enc.rows(data)) for (pub, _), data in zip(pubs, enc.payloads)
+                   if pub.get_subscription_count()]
+        if self.pub_clock is not None and self.pub_clock.get_subscription_count():
+            streams.append((self.pub_clock.publish, enc.rows(enc.clock)))
+        if not streams:
+            return
+        for row in zip(*(rows for _, rows in streams)):
+            for (publish, _), data in zip(streams, row):
+                publish(data)
+
+    def _publish_each(self, pubs: tuple[tuple[Any, Any], ...], block: ReadingBlock, recording: bool) -> None:
+        """Message by message (the layouts are not fixed: rclpy serialises each)."""
+        msgs = self._msgs
         for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
             for (pub, msg), data in zip(pubs, encoded):
                 if recording:
@@ -555,19 +616,22 @@ class RigNode(Node):
                     pub.publish(data)
             if self.pub_clock is not None:
                 self.pub_clock.publish(msgs.clock_bytes(stamp_ns))
-        t = float(block.time_s[-1])
-        if t >= self._next_shape_s - 1e-9:
-            self._next_shape_s = t + self._shape_period_s
-            self._publish_shape(t, block.state == ABORTED)
 
-    def _publish_shape(self, t: float, aborted: bool) -> None:
-        w = self.rig.shape_w_over_L(self._x_over_L)
+    def _publish_shape(self, t: float, aborted: bool, q: np.ndarray | None = None) -> None:
+        w = self.rig.shape_w_over_L(self._x_over_L, q)
         stamp = self._stamp_ns(t)
-        marker = self._msgs.shape(stamp, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L, aborted)
-        self._publish(self.pub_shape, marker, stamp, qos="reliable")
+        z_m = np.asarray(w, dtype=float) * self.cfg.panel_length_m
+        if self._shape_cdr.ok:  # the Marker's CDR from its template (serialize_message of 36 points: ~0.3 ms)
+            self._publish_bytes(self.pub_shape, self._shape_cdr.message(aborted), self._shape_cdr.pack(stamp, z_m, aborted),
+                                stamp, qos="reliable")
+        else:
+            marker = self._msgs.shape(stamp, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L,
+                                      aborted)
+            self._publish(self.pub_shape, marker, stamp, qos="reliable")
         if self._rerun is not None:
             try:
-                self._rerun.queue_shape(t, [pt.x for pt in marker.points], [pt.z for pt in marker.points])
+                z_all = np.concatenate([np.zeros(self._shape_x_m.size - z_m.size), z_m])
+                self._rerun.queue_shape(t, self._shape_x_m, np.where(np.isfinite(z_all), z_all, 0.0))
             except Exception as exc:  # noqa: BLE001
                 self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
 
@@ -637,7 +701,8 @@ class RigNode(Node):
 
 def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
     """Run the node until ``should_stop()``: timers in real-time mode; in fast mode a stepping loop that
-    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time."""
+    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time, or less
+    often when a pass costs more than ``FAST_SPIN_SHARE`` of that (at least every ``FAST_SPIN_MAX_PERIOD_S``)."""
     next_spin = 0.0
     pace_wall, pace_sim = time.monotonic(), node.rig.time_s
     while not should_stop() and rclpy.ok(context=node.context):
@@ -664,7 +729,8 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
             next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
         elif now >= next_spin:
             executor.spin_once(timeout_sec=0.0)
-            next_spin = now + FAST_SPIN_PERIOD_S
+            cost = time.monotonic() - now  # rclpy rebuilds the wait set each pass: keep its share of the wall bounded
+            next_spin = now + min(max(FAST_SPIN_PERIOD_S, cost / FAST_SPIN_SHARE), FAST_SPIN_MAX_PERIOD_S)
 
 
 def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:

@@ -1,0 +1,246 @@
+"""The node's block serialisation: numpy-built CDR and MCAP records equal the per-message path they replace."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("mcap")
+
+from geometry_msgs.msg import PointStamped, Vector3Stamped  # noqa: E402
+from mcap.reader import make_reader  # noqa: E402
+from mcap_ros2.decoder import DecoderFactory  # noqa: E402
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from visualization_msgs.msg import Marker  # noqa: E402
+
+from panel_rig.recording import BagWriter  # noqa: E402
+from panel_rig.rig.reading import ReadingBlock  # noqa: E402
+from panel_rig.ros import messages  # noqa: E402
+
+N_MODES = 4
+TOPICS = ("/rig/tip_displacement", "/rig/modal_states", "/rig/airspeed", "/rig/tip_displacement/truth")
+TYPES = (PointStamped, JointState, Vector3Stamped, PointStamped)
+
+
+def _block(rng: np.random.Generator, t0_s: float, n: int) -> ReadingBlock:
+    def col(*shape: int) -> np.ndarray:
+        return rng.normal(size=(n, *shape))
+
+    block = ReadingBlock(t0_s + np.arange(1, n + 1) / 500.0, col(), col(), col(), col(), col(N_MODES),
+                         col(N_MODES), col(N_MODES))
+    if n > 3:  # non-finite values must become 0 on both paths
+        block.q[1, 2] = np.nan
+        block.tip_w_m[3] = np.inf
+    return block
+
+
+def _reference_messages(block: ReadingBlock, offset_ns: int, panel_length_m: float) -> list[list]:
+    """The readings built field by field as rclpy messages (what the node publishes)."""
+    out = []
+    for i in range(len(block)):
+        ns = messages.stamp_ns(float(block.time_s[i])) + offset_ns
+        hdr = messages.header(ns)
+
+        def fin(x: float) -> float:
+            return float(x) if np.isfinite(x) else 0.0
+
+        tip = PointStamped(header=hdr)
+        tip.point.x, tip.point.z = 0.5, fin(block.tip_w_m[i])
+        modal = JointState(header=hdr, name=[f"q{k + 1}" for k in range(N_MODES)],
+                           position=[fin(v) for v in block.q[i]], velocity=[fin(v) for v in block.qdot_per_s[i]],
+                           effort=[fin(v) for v in block.aero_force_npm[i]])
+        air = Vector3Stamped(header=hdr)
+        air.vector.x = fin(block.airspeed_mps[i])
+        truth = PointStamped(header=hdr)
+        truth.point.x, truth.point.z = 0.5, fin(block.tip_w_over_L[i] * panel_length_m)
+        out.append([ns, tip, modal, air, truth, Clock(clock=messages.stamp(ns))])
+    return out
+
+
+@pytest.mark.parametrize("offset_ns", [0, 1_763_000_000_123_456_789])
+def test_block_cdr_decodes_to_the_messages_field_by_field(offset_ns: int) -> None:
+    rng = np.random.default_rng(3)
+    msgs = messages.ReadingMessages([f"q{k + 1}" for k in range(N_MODES)], 0.5, 0.3)
+    assert msgs.templated
+    block = _block(rng, 12.345, 40)
+    enc = msgs.encode_block(block, offset_ns)
+    assert enc is not None and len(enc) == len(block)
+    per_message = list(msgs.encode(block, offset_ns))
+    for i, (ns, *expected) in enumerate(_reference_messages(block, offset_ns, 0.3)):
+        assert int(enc.stamps_ns[i]) == ns == per_message[i][0]
+        for k, (cls, msg) in enumerate(zip((*TYPES, Clock), expected)):
+            data = (enc.payloads + (enc.clock,))[k][i].tobytes()
+            assert deserialize_message(data, cls) == msg, (i, k)
+            assert deserialize_message(data, cls) == deserialize_message(serialize_message(msg), cls)
+        for k in range(4):  # and byte for byte the per-message templates
+            assert enc.payloads[k][i].tobytes() == per_message[i][1 + k]
+
+
+def test_a_wrong_template_is_refused() -> None:
+    """The check that guards every template can fail: a shifted field offset no longer decodes to the message."""
+    tpl = messages.ReadingMessages(["q1", "q2"], 0.5, 0.3)._tpl[0]
+    assert tpl.ok and tpl._check()
+    stamp_at, starts = tpl._offsets
+    tpl._offsets = (stamp_at, [starts[0] - 8])
+    assert not tpl._check()
+
+
+def test_shape_template_decodes_to_the_marker() -> None:
+    x = np.linspace(0.0, 1.0, 31)
+    shape = messages.ShapeCdr(0.1, 0.3, x)
+    assert shape.ok
+    w = 0.4 * np.sin(3 * x)
+    w[4] = np.nan
+    for aborted in (False, True, False):
+        expected = messages.shape_msg(987_654_321_012, 0.1, 0.3, w, x, aborted)
+        got = deserialize_message(shape.pack(987_654_321_012, w * 0.3, aborted), Marker)
+        assert got == deserialize_message(serialize_message(expected), Marker)  # float32 colours as on the wire
+        assert type(shape.message(aborted)) is Marker
+
+
+def _write_both(tmp_path: Path, chunk_size: int) -> tuple[Path, Path, list]:
+    rng = np.random.default_rng(7)
+    msgs = messages.ReadingMessages([f"q{k + 1}" for k in range(N_MODES)], 0.5, 0.3)
+    objs = (msgs.tip, msgs.modal, msgs.airspeed, msgs.truth)
+    topics = list(zip(TOPICS, objs))
+    blocks = [msgs.encode_block(_block(rng, 0.2 * i, [64, 1, 13, 64, 2][i % 5])) for i in range(25)]
+    paths = []
+    for name, blockwise in (("a", False), ("b", True)):
+        writer = BagWriter(tmp_path / name / "bag", chunk_size_bytes=chunk_size, flush_period_s=1e3)
+        for (topic, msg), p in zip(topics, blocks[0].payloads):  # channels registered alike in both
+            writer.write(topic, msg, 1, data=p[0].tobytes())
+        for enc in blocks:
+            if blockwise:
+                assert writer.write_block(topics, enc.stamps_ns, enc.payloads)
+            else:
+                for i in range(len(enc)):
+                    for (topic, msg), p in zip(topics, enc.payloads):
+                        writer.write(topic, msg, int(enc.stamps_ns[i]), data=p[i].tobytes())
+        writer.close()
+        paths.append(tmp_path / name / "bag")
+    return paths[0], paths[1], blocks
+
+
+@pytest.mark.parametrize("chunk_size", [200, 4096, 64 * 1024])
+def test_block_writes_give_the_same_bag_byte_for_byte(tmp_path: Path, chunk_size: int) -> None:
+    a, b, blocks = _write_both(tmp_path, chunk_size)
+    assert (a / "bag_0.mcap").read_bytes() == (b / "bag_0.mcap").read_bytes()
+    assert (a / "metadata.yaml").read_text() == (b / "metadata.yaml").read_text()
+    with open(b / "bag_0.mcap", "rb") as f:  # and it decodes, with chunk indexes, in order
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        n = 4 * (1 + sum(len(e) for e in blocks))
+        assert summary.statistics.message_count == n
+        assert len(summary.chunk_indexes) == summary.statistics.chunk_count >= 1
+        decoded = list(reader.iter_decoded_messages(log_time_order=False))
+    assert len(decoded) == n
+    assert [d.channel.topic for d in decoded[4:12]] == list(TOPICS) * 2
+    assert [d.message.sequence for d in decoded if d.channel.topic == TOPICS[1]] == list(range(n // 4))
+
+
+def test_write_block_refuses_bad_payloads(tmp_path: Path) -> None:
+    from panel_rig.recording import RecordingError
+
+    msgs = messages.ReadingMessages(["q1"], 0.5, 0.3)
+    with BagWriter(tmp_path / "bag") as writer:
+        with pytest.raises(RecordingError):
+            writer.write_block([("/rig/tip", msgs.tip)], np.array([1, 2]), [np.zeros((3, 8), np.uint8)])
+        with pytest.raises(RecordingError):
+            writer.write_block([("rig/tip", msgs.tip)], np.array([1]), [np.zeros((1, 8), np.uint8)])
+    assert not writer.write_block([("/rig/tip", msgs.tip)], np.array([1]), [np.zeros((1, 8), np.uint8)])
+    assert writer.dropped_after_close == 1
+
+
+def test_exact_shape_sampler_equals_the_shape_function() -> None:
+    from panel_rig.model.elastica import shape, shape_sampler
+
+    s = np.linspace(0.0, 1.0, 31)
+    sampler = shape_sampler(4, tuple(s))
+    rng = np.random.default_rng(0)
+    for amplitude in (0.01, 0.5, 1.5):
+        q = amplitude * rng.normal(size=4)
+        for got, expected in zip(sampler(q), shape(q, s)):
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("variant", ["full", "exact"])
+def test_shape_of_a_sample_q_is_the_shape_of_that_state(variant: str) -> None:
+    """Fast mode draws the shape of a mid-block sample from its q: the same as the stepper's own shape there."""
+    from panel_rig.config import PanelConfig
+    from panel_rig.model.stepper import Stepper
+
+    st = Stepper(PanelConfig(), variant=variant)
+    x = np.linspace(0.0, 1.0, 31)
+    for _ in range(40):
+        st.step(11.0, 2.0)
+    q = st.q.copy()
+    own = st.shape_w_over_L(x)
+    assert np.max(np.abs(own)) > 0
+    np.testing.assert_array_equal(st.shape_w_over_L(x, q=q), own)
+    for _ in range(5):
+        st.step(11.0, 2.0)
+    np.testing.assert_array_equal(st.shape_w_over_L(x, q=q), own)  # of q, not of the present state
+    assert not np.array_equal(st.shape_w_over_L(x), own)
+
+
+def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: Path) -> None:
+    """In-process fast node, recording, no subscribers (64-period blocks): the bag holds every reading once, in
+    order, and a panel_shape every 1/30 s whose trailing-edge z is the truth reading at its stamp."""
+    import os
+    import random
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode, spin
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random.randint(201, 230))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
+        Parameter("bag_dir", value=str(tmp_path)), Parameter("tunnel.time_constant_s", value=0.2)])
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        node.rig.command_force(0.5)
+        node.rig.command_airspeed(8.0)
+        blocks: list[int] = []
+        march = node.rig.advance_samples
+        node.rig.advance_samples = lambda counts: (blocks.append(len(counts)), march(counts))[1]  # type: ignore
+        spin(node, executor, lambda: node.rig.time_s > 3.0)
+        executor.shutdown()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert max(blocks) == FAST_MAX_BLOCK_PERIODS  # marched past the 30 Hz shape samples
+    mcap = next(tmp_path.glob("*/*.mcap"))
+    by_topic: dict[str, list] = {}
+    with open(mcap, "rb") as f:
+        for _, channel, message, decoded in make_reader(f, decoder_factories=[DecoderFactory()]) \
+                .iter_decoded_messages(log_time_order=False):
+            by_topic.setdefault(channel.topic, []).append((message.log_time, decoded))
+    truth = dict(by_topic["/tip_displacement/truth"])
+    tip_stamps = [t for t, _ in by_topic["/tip_displacement"]]
+    assert tip_stamps == sorted(tip_stamps) and len(set(tip_stamps)) == len(tip_stamps)
+    steps = np.diff(tip_stamps) / (1e9 / 2048)  # readings at whole physics steps, 500 per simulated second
+    assert np.all(np.abs(steps - np.round(steps)) < 1e-3) and set(np.round(steps).astype(int)) <= {4, 5}
+    assert len(tip_stamps) == pytest.approx(500 * tip_stamps[-1] * 1e-9, abs=2)
+    for topic in ("/modal_states", "/airspeed", "/tip_displacement/truth"):
+        assert [t for t, _ in by_topic[topic]] == tip_stamps
+    shapes = by_topic["/panel_shape"]
+    assert len(shapes) == pytest.approx(30 * tip_stamps[-1] * 1e-9, abs=2)
+    assert np.all(np.abs(np.diff([t for t, _ in shapes]) - 1e9 / 30) <= 2_000_001)  # within one reading
+    moving = 0
+    for stamp, marker in shapes:
+        z_tip = marker.points[-1].z
+        assert z_tip == pytest.approx(truth[stamp].point.z, rel=1e-9, abs=1e-12)
+        moving += abs(z_tip) > 1e-6
+    assert moving > len(shapes) // 2
