@@ -497,8 +497,10 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
     uf, mode = found
     force = rec.force_npm if np.any(rec.force_npm) else None
     # a node run with the flutter monitor recorded its test-point window: replay exactly that window
+    # (a run without the monitor records the flutter_test.* defaults too: its plateaus are replayed whole)
+    monitored = rec.parameters.get("flutter_monitor") is True
     window = {k: float(rec.parameters[f"flutter_test.{k}"]) for k in ("settle_s", "dwell_s")
-              if isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
+              if monitored and isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
                            rec.panel_length_m, force, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))

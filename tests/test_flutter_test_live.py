@@ -1,13 +1,15 @@
 """`panel-rig flutter-test` end to end on the live node over topics (the default path): the command starts the rig
 node in a private ROS domain, commands the airspeed on /rig/airspeed_cmd and takes each test point from the
-node's /rig/flutter_monitor. Bounded: a thicker panel (any --set configuration must work), 40 s dwells, three
-points (0.5, 0.6, 0.7 U_f), ~135 s simulated."""
+node's /rig/flutter_monitor. Bounded: a thicker panel (any --set configuration must work), 80 s dwells, three
+points from 8.4 m/s (0.7, 0.8, 0.9 U_f), 255 s simulated (~13 s wall). Points at 0.5-0.7 U_f with 40 s dwells
+were tried first: the damping estimates (+-0.004) did not fall monotonically and rounding-level changes of the
+model decided whether a prediction existed."""
 
 import json
 
 import pytest
 
-SETTLE_S, DWELL_S = 5.0, 40.0
+SETTLE_S, DWELL_S, START_MPS = 5.0, 80.0, 8.4
 
 
 @pytest.fixture(scope="module")
@@ -21,8 +23,8 @@ def live_run(tmp_path_factory):
 
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", str(DWELL_S), "--max-points",
-                     "3", "--json", "--bag-dir", str(tmp), "--plot", str(tmp / "vg.png")])
+        code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", str(DWELL_S), "--start-mps",
+                     str(START_MPS), "--max-points", "3", "--json", "--bag-dir", str(tmp), "--plot", str(tmp / "vg.png")])
     return code, json.loads(buf.getvalue()), tmp
 
 
@@ -37,7 +39,7 @@ def test_live_flutter_test_json_and_lockstep(live_run):
     assert out["live"] is True and out["node_exit_code"] == 0 and out["fluttered"] is False
     assert out["model_flutter_speed_mps"] > 11.0  # thicker panel: later flutter than the paper's 10.48 m/s
     u = [p["airspeed_mps"] for p in out["test_points"]]
-    assert len(u) == 3 and u[0] == pytest.approx(0.5 * out["model_flutter_speed_mps"]) and u == sorted(u)
+    assert len(u) == 3 and u[0] == START_MPS and u == sorted(u)
     assert out["max_airspeed_mps"] == max(u) < out["model_flutter_speed_mps"]
     for p in out["test_points"]:
         lo, hi = p["damping_ci"]
@@ -45,7 +47,8 @@ def test_live_flutter_test_json_and_lockstep(live_run):
         assert p["method"] == "ssi-cov" and p["first_mode"] is not None
     assert out["predicted_flutter_speed_mps"] is not None
     assert out["node_prediction_mps"] == out["predicted_flutter_speed_mps"]
-    assert out["stop_reason"] == "3 test points done"
+    # the third point (0.9 U_f) is close enough for the procedure to stop on the margin, or the point budget ends it
+    assert out["stop_reason"] == "3 test points done" or out["stop_reason"].startswith("predicted margin")
     assert (tmp / "vg.png").stat().st_size > 0
 
 

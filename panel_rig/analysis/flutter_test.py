@@ -290,6 +290,16 @@ def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: flo
 FLUTTER_TIP_FRACTION = 0.02
 
 
+def _fluttered(t: np.ndarray, y: np.ndarray, t_cmd_s: float, t_from_s: float, t_end_s: float,
+               force_npm: np.ndarray | None, panel_length_m: float) -> bool:
+    """The tip exceeded FLUTTER_TIP_FRACTION x L on the plateau: from the command on (as the live monitor watches),
+    or, when the shaker pushed during the plateau (a tap's forced response may pass that size), in the identified
+    window only."""
+    tapped = force_npm is not None and bool(np.any(np.asarray(force_npm)[(t >= t_cmd_s) & (t < t_end_s)] != 0))
+    watch = (t >= (t_from_s if tapped else t_cmd_s)) & (t < t_end_s)
+    return bool(watch.any() and np.max(np.abs(y[watch])) > FLUTTER_TIP_FRACTION * panel_length_m)
+
+
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
@@ -297,7 +307,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
-    ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L."""
+    ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
+    (:func:`_fluttered`)."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
@@ -309,8 +320,7 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
             continue
         if out and u <= out[-1].airspeed_mps:
             break
-        run_in = (t >= tc) & (t < t_end)
-        if run_in.any() and np.max(np.abs(y[run_in])) > FLUTTER_TIP_FRACTION * panel_length_m:
+        if _fluttered(t, y, tc, tc + settle_s, t_end, force_npm, panel_length_m):
             break
         yy, dt = resample_window(t, y, tc + settle_s, t_end)
         if yy.size < 16:
