@@ -90,23 +90,14 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    settle_s: float | None = None, max_points: int | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
-    from panel_rig.analysis.vg import model_flutter_speed
-    from panel_rig.model.stepper import Stepper
-    from panel_rig.rig.flutter_run import default_plan, rig_measure
+    from panel_rig.rig.flutter_run import pretest_plan, rig_measure
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
     from panel_rig.ros import messages
     from panel_rig.ros.flutter_monitor import TOPIC, monitor_msg
 
     t0 = time.monotonic()
-    st = Stepper(cfg, variant=variant)
-    found = model_flutter_speed(st.model)
-    if found is None:
-        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
-    uf, mode = found
-    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
-               if v is not None}
-    settings = default_plan(uf, margin, start_mps, **changes)
+    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
     limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
     sinks: list[Any] = []

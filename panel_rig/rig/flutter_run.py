@@ -4,7 +4,7 @@ turbulence, sensor and safety as the node's rig. Used by the unit tests and as t
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -54,6 +54,24 @@ def default_plan(uf_model_mps: float, margin: float = 0.1, start_mps: float | No
     """Test plan from the pre-test model's U_f: start at half of it, steps of a tenth of it."""
     return FlutterTestSettings(start_mps=start_mps if start_mps is not None else 0.5 * uf_model_mps,
                                step_mps=0.1 * uf_model_mps, margin=margin, **changes)
+
+
+def pretest_plan(cfg: PanelConfig, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
+                 dwell_s: float | None = None, settle_s: float | None = None, max_points: int | None = None
+                 ) -> tuple[Any, float, int, FlutterTestSettings]:
+    """The pre-test analysis: a stepper of ``cfg``, the model's linear U_f (m/s) and flutter mode, and the plan
+    from them (None: the plan's default). Raises ValueError when the model does not flutter."""
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+
+    st = Stepper(cfg, variant=variant)
+    found = model_flutter_speed(st.model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
+    uf, mode = found
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
+               if v is not None}
+    return st, uf, mode, default_plan(uf, margin, start_mps, **changes)
 
 
 def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,

@@ -63,18 +63,10 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     run_dir = Path(tempfile.mkdtemp(prefix=time.strftime("flutter_test_%Y%m%d_%H%M%S_"), dir=base))
 
     # the pre-test analysis (this process) gives the plan: U_f, the start and the step
-    from panel_rig.analysis.vg import model_flutter_speed
-    from panel_rig.model.stepper import Stepper
-    from panel_rig.rig.flutter_run import default_plan
+    from panel_rig.rig.flutter_run import pretest_plan
 
-    model = Stepper(cfg, variant=variant).model
-    found = model_flutter_speed(model)
-    if found is None:
-        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
-    uf, mode = found
-    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
-               if v is not None}
-    settings = default_plan(uf, margin, start_mps, **changes)
+    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    model = st.model
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
                           run_dir if bag_dir is not None else None, rerun)
     params_file = run_dir / "node_params.yaml"
