@@ -151,6 +151,7 @@ class Operator(Node):
         self._samples: list[tuple[float, float]] | None = None
         self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
         self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
+        self.dropped_samples = 0  # samples rclpy failed to convert (see _spin)
         self.pubs = {
             name: self.create_publisher(Float64, topic, COMMAND_QOS)
             for name, topic in (
@@ -175,7 +176,17 @@ class Operator(Node):
             self._samples.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.point.z))
 
     def _spin(self, timeout_s: float = 0.05) -> None:
-        rclpy.spin_once(self, timeout_sec=timeout_s)
+        try:
+            rclpy.spin_once(self, timeout_sec=timeout_s)
+        except RuntimeError as exc:
+            # rclpy could not convert a taken sample to Python: seen when SIGINT made rclpy's signal handler shut the
+            # context down during a take (main now leaves SIGINT to Python); that sample is lost, as a best-effort
+            # sample may be; the operator goes on and says so once
+            if "Unable to convert" not in str(exc):
+                raise
+            self.dropped_samples += 1
+            if self.dropped_samples == 1:
+                self.get_logger().warning(f"dropped a sample that rclpy could not convert ({exc})")
         if time.monotonic() - self._last_msg_wall > self.timeout_s:
             raise RigUnavailable(f"no readings from the rig for {self.timeout_s:g} s")
 
@@ -274,6 +285,7 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
+    from rclpy.executors import ExternalShutdownException
     from rclpy.utilities import remove_ros_args
 
     args = list(sys.argv[1:] if argv is None else argv)
@@ -287,7 +299,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ProfileError as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         return 2
-    rclpy.init(args=["rig_operator", *args])
+    from rclpy.signals import SignalHandlerOptions
+
+    # SIGINT stays Python's KeyboardInterrupt: with rclpy's handler the context was shut down under whatever call
+    # was running, which then failed in one of several ways (a timer on an invalid context, a take, an
+    # ExternalShutdownException) instead of ending the profile cleanly with 130
+    rclpy.init(args=["rig_operator", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = Operator(opts.namespace, opts.timeout)
     code = 0
     try:
@@ -296,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RigUnavailable as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         code = 1
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT: Python's or rclpy's handler, whichever ran
         code = 130
     finally:
         node.destroy_node()
