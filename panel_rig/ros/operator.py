@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -151,7 +153,8 @@ class Operator(Node):
         self._samples: list[tuple[float, float]] | None = None
         self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
         self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
-        self.dropped_samples = 0  # samples rclpy failed to convert (see _spin)
+        # set by main's SIGINT/SIGTERM handler; the profile stops at the next spin (see _spin)
+        self.stop_requested = threading.Event()
         self.pubs = {
             name: self.create_publisher(Float64, topic, COMMAND_QOS)
             for name, topic in (
@@ -176,17 +179,15 @@ class Operator(Node):
             self._samples.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.point.z))
 
     def _spin(self, timeout_s: float = 0.05) -> None:
-        try:
-            rclpy.spin_once(self, timeout_sec=timeout_s)
-        except RuntimeError as exc:
-            # rclpy could not convert a taken sample to Python: seen when SIGINT made rclpy's signal handler shut the
-            # context down during a take (main now leaves SIGINT to Python); that sample is lost, as a best-effort
-            # sample may be; the operator goes on and says so once
-            if "Unable to convert" not in str(exc):
-                raise
-            self.dropped_samples += 1
-            if self.dropped_samples == 1:
-                self.get_logger().warning(f"dropped a sample that rclpy could not convert ({exc})")
+        """One executor turn; then KeyboardInterrupt if a stop was requested, RigUnavailable if silent too long.
+
+        The signal handler only sets :attr:`stop_requested`: a KeyboardInterrupt raised by Python's own handler lands
+        in whatever runs, e.g. inside rclpy's conversion of a taken sample, which then fails ("Unable to convert
+        call argument") and leaves that subscription's callback group marked busy for good: no reading is delivered
+        again and the operator ends "no readings from the rig" instead of 130."""
+        rclpy.spin_once(self, timeout_sec=timeout_s)
+        if self.stop_requested.is_set():
+            raise KeyboardInterrupt
         if time.monotonic() - self._last_msg_wall > self.timeout_s:
             raise RigUnavailable(f"no readings from the rig for {self.timeout_s:g} s")
 
@@ -283,6 +284,14 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
     return "\n".join(lines)
 
 
+def stop_on_signals(stop: threading.Event) -> dict[int, Any]:
+    """SIGINT and SIGTERM set ``stop`` (and raise nothing); returns the previous handlers, to restore."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in previous:
+        signal.signal(s, lambda *_: stop.set())
+    return previous
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
     from rclpy.executors import ExternalShutdownException
@@ -301,11 +310,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     from rclpy.signals import SignalHandlerOptions
 
-    # SIGINT stays Python's KeyboardInterrupt: with rclpy's handler the context was shut down under whatever call
-    # was running, which then failed in one of several ways (a timer on an invalid context, a take, an
-    # ExternalShutdownException) instead of ending the profile cleanly with 130
+    # SIGINT/SIGTERM set a flag that the spin loop turns into a clean stop (130): rclpy's handler shut the context
+    # down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (see Operator._spin)
     rclpy.init(args=["rig_operator", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = Operator(opts.namespace, opts.timeout)
+    previous = stop_on_signals(node.stop_requested)
     code = 0
     try:
         summary = node.play(steps)
@@ -313,9 +322,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RigUnavailable as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT: Python's or rclpy's handler, whichever ran
+    except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
         code = 130
     finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
