@@ -148,31 +148,39 @@ def shape(q: np.ndarray, s: np.ndarray, n_fine: int = 2001) -> tuple[np.ndarray,
 
 
 @lru_cache(maxsize=16)
-def shape_sampler(n_modes: int, s: tuple[float, ...], n_fine: int = 2001) -> ShapeSampler:
-    """:func:`shape` at fixed stations ``s`` as a precomputed linear map (cached: the live rig draws the panel
-    at 30 Hz of simulated time, i.e. ~1000 times per wall second in fast mode)."""
-    return ShapeSampler(n_modes, np.asarray(s, dtype=float), n_fine)
+def shape_sampler(n_modes: int, s: tuple[float, ...]) -> ShapeSampler:
+    """The exact panel's (x/L, w/L) at fixed stations ``s`` as a precomputed linear map (cached: the live rig
+    draws the panel at 30 Hz of simulated time, i.e. ~1000 times per wall second in fast mode)."""
+    return ShapeSampler(n_modes, np.asarray(s, dtype=float))
 
 
 class ShapeSampler:
-    """(x/L, w/L) at stations s for a vector q, equal to :func:`shape` to rounding (~1e-16): the slope basis
-    psi on the fine grid and the operator "Simpson running integral, then linear interpolation at s" (linear
-    in the integrand) are computed once; a call is two matrix-vector products on cos theta and sin theta."""
+    """(x/L, w/L) = (int_0^s cos theta, int_0^s sin theta) at stations s for a vector q, by Gauss-Legendre
+    quadrature (``n_gauss`` points) on the sub-intervals between the stations and a uniform grid of spacing at
+    most ``max_step``: within 1e-13 of adaptive quadrature for tip angles of a few radians (:func:`shape`, a 2001-point
+    Simpson rule read at the stations by linear interpolation: ~4e-6), with ~4x fewer points (20 us a call for 31
+    stations, was 94 us). theta at the nodes and the running sums up to each station are fixed: a call is one
+    small matrix product for theta and two for the integrals."""
 
-    def __init__(self, n_modes: int, s: np.ndarray, n_fine: int) -> None:
-        grid = np.linspace(0.0, 1.0, n_fine)
-        self.psi = mode_shapes(n_modes, grid, 1)  # (n_modes, n_fine)
-        # row i: the running integral of e_i (uniform grid: the equal-interval Simpson rule, ~0.15 s once)
-        running = cumulative_simpson(np.eye(n_fine), dx=grid[1] - grid[0], initial=0.0, axis=-1)
-        # linear interpolation at s: two grid columns per station (clamped to [0, 1] as np.interp is)
-        sc = np.clip(s, 0.0, 1.0)
-        i = np.clip(np.searchsorted(grid, sc, side="right") - 1, 0, n_fine - 2)
-        frac = (sc - grid[i]) / (grid[i + 1] - grid[i])
-        self.op = np.ascontiguousarray(running[:, i] * (1.0 - frac) + running[:, i + 1] * frac)  # (n_fine, len(s))
+    def __init__(self, n_modes: int, s: np.ndarray, n_gauss: int = 10, max_step: float = 1.0 / 16.0) -> None:
+        sc = np.clip(np.asarray(s, dtype=float).reshape(-1), 0.0, 1.0)
+        edges = np.unique(np.concatenate((np.linspace(0.0, 1.0, int(np.ceil(1.0 / max_step)) + 1), sc)))
+        xg, wg = legendre.leggauss(n_gauss)
+        half, mid = 0.5 * np.diff(edges), 0.5 * (edges[1:] + edges[:-1])
+        nodes = (mid[:, None] + half[:, None] * xg).reshape(-1)
+        weights = (half[:, None] * wg).reshape(-1)
+        self.psi = mode_shapes(n_modes, nodes, 1)  # (n_modes, n_nodes): theta = q @ psi
+        # station j sums the sub-intervals that end at or before it (edges are the stations' own values)
+        ends = np.repeat(edges[1:], n_gauss)
+        self.op = np.ascontiguousarray(weights[:, None] * (ends[:, None] <= sc[None, :]))  # (n_nodes, len(s))
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         th = np.asarray(q, dtype=float) @ self.psi
         return np.cos(th) @ self.op, np.sin(th) @ self.op
+
+    def w(self, q: np.ndarray) -> np.ndarray:
+        """w/L alone (the second of :meth:`__call__`)."""
+        return np.sin(np.asarray(q, dtype=float) @ self.psi) @ self.op
 
 
 # ---- statics: dead transverse tip load (panel-rig static) ------------------------------------------

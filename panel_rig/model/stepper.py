@@ -214,7 +214,7 @@ class Stepper:
             return exact_shape(q, x)[1] if self.exact else q @ mode_shapes(self.n_modes, x)
         key = tuple(x.tolist())
         if self.exact:  # the precomputed sampler of the same shape (the live rig draws it ~1000 times/s)
-            return shape_sampler(self.n_modes, key)(q)[1]
+            return shape_sampler(self.n_modes, key).w(q)
         basis = self._shape_basis.get(key)
         if basis is None:
             basis = self._shape_basis[key] = mode_shapes(self.n_modes, x)

@@ -42,6 +42,11 @@ class AirspeedActuator:
         self.airspeed_mps = max(0.0, target)
         return self.airspeed_mps
 
+    @property
+    def settled(self) -> bool:
+        """At its set-point (>= 0): :meth:`step` leaves the airspeed as it is, bit for bit."""
+        return self.airspeed_mps == self.setpoint_mps and self.setpoint_mps >= 0.0
+
     def reset(self) -> None:
         """Tunnel at rest, set-point 0."""
         self.setpoint_mps = 0.0

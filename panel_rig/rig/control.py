@@ -113,6 +113,12 @@ class ControlActuator:
         self.force_npm, self.target_npm, self.state, pending, self._last_arrival_s, self.timeouts = snap
         self._pending = deque(pending)
 
+    @property
+    def quiet(self) -> bool:
+        """No force, none commanded and none pending, watchdog not armed: :meth:`step` returns 0 and changes
+        nothing, for as many steps as it is called."""
+        return not self._pending and self.state != ACTIVE and self.force_npm == 0.0 and self.target_npm == 0.0
+
     def step(self, t_start_s: float) -> float:
         """The force for the physics step that starts at ``t_start_s`` (then advanced by one dt)."""
         while self._pending and self._pending[0][0] <= t_start_s + 1e-12:

@@ -239,6 +239,17 @@ class Rig:
         the shaker's own force; advances the actuator, the shaker and the control actuator by n steps (exactly
         as :meth:`step` does)."""
         act, shaker, control = self.actuator, self.shaker, self.control
+        if control.quiet and shaker.amplitude_npm == 0.0:  # constant forces: no per-step calls (fast mode's common case)
+            held = shaker.force_npm
+            shaker.advance_phase(n)
+            if act.settled:
+                u_in = u_out = [act.airspeed_mps] * n
+            else:
+                u_in, u_out = [0.0] * n, [0.0] * n
+                for k in range(n):
+                    u_in[k] = act.airspeed_mps
+                    u_out[k] = act.step()
+            return u_in, [held + 0.0] * n, u_out, [held] * n
         u_in, force, u_out, shaken = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
         for k in range(n):
             u_in[k] = act.airspeed_mps

@@ -34,3 +34,11 @@ class Shaker:
         force = self.force_npm
         self.phase_rad = (self.phase_rad + TWO_PI * self.frequency_hz * self.dt_s) % TWO_PI
         return force
+
+    def advance_phase(self, n: int) -> None:
+        """The phase after n calls of :meth:`step`, bit for bit (for a block in which the sine is off)."""
+        inc, phase = TWO_PI * self.frequency_hz * self.dt_s, self.phase_rad
+        if inc != 0.0:
+            for _ in range(n):
+                phase = (phase + inc) % TWO_PI
+        self.phase_rad = phase
