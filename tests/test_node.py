@@ -445,6 +445,8 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
     assert rms_mm > 0 and f_hz == pytest.approx(8.0, rel=0.1)
     ramp = next(r for r in rows if r[1] == "ramp")
     assert num(ramp[-4]) == 3.0  # commanded at the end of the ramp
+    abort_line = next(line for line in proc.stdout.splitlines() if line.split()[1:2] == ["abort"])
+    assert "rig aborted at t = " in abort_line, proc.stdout  # from the rig's diagnostics
     bad = subprocess.run([PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(tmp_path / "missing.yaml")],
                          env=ros_env, capture_output=True, text=True, timeout=30, check=False)
     assert bad.returncode == 2 and "not found" in bad.stderr
@@ -728,3 +730,15 @@ def test_operator_signal_only_requests_a_stop(ros_env: dict[str, str]) -> None:
     finally:
         rclpy.shutdown()
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> None:
+    from panel_rig.ros.operator import StepSummary, annotate_aborts
+
+    steps = [StepSummary(1, "airspeed 11.2", 0.0, 0.1), StepSummary(2, "dwell_s 30.0", 0.1, 30.1),
+             StepSummary(3, "airspeed 10.0", 30.1, 30.2), StepSummary(4, "dwell_s 5.0", 30.2, 35.2),
+             StepSummary(5, "reset", 35.2, 35.3, note="reset"), StepSummary(6, "airspeed 8.0", 35.3, 35.4)]
+    annotate_aborts(steps, {12.5: "tip |w/L| = 0.93 exceeds the limit 0.926"})
+    assert steps[1].note == "rig aborted at t = 12.50 s: tip |w/L| = 0.93 exceeds the limit 0.926"
+    assert steps[2].note.startswith("rejected") and steps[3].note == ""  # a dwell sends nothing
+    assert steps[4].note == "reset" and steps[5].note == "" and steps[0].note == ""

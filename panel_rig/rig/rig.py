@@ -132,6 +132,7 @@ class Rig:
         self._divergence = divergence_errors or _divergence_types()
         self.state = RUNNING
         self.abort_reason = ""
+        self.abort_time_s = math.nan  # simulated time of the last abort
         self.rejected_count = 0
         self.last_rejection = ""
         self.overrun_count = 0
@@ -385,6 +386,7 @@ class Rig:
         self.control.reset()
         if self.state != ABORTED:
             self.abort_count += 1
+            self.abort_time_s = self._time_s
             self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
         self.state = ABORTED
         self.abort_reason = reason

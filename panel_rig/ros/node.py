@@ -670,6 +670,7 @@ class RigNode(Node):
             "last_rejection": rig.last_rejection,
             "abort_reason": rig.abort_reason,
             "aborts": rig.abort_count,
+            "last_abort_time_s": f"{rig.abort_time_s:.6f}" if rig.abort_count else "",
             "airspeed_setpoint_mps": f"{rig.actuator.setpoint_mps:.4f}",
             "airspeed_mps": f"{rig.actuator.airspeed_mps:.4f}",
             "tick_jitter_p99_ms": f"{jitter:.3f}",

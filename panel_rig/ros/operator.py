@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import rclpy
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -37,6 +38,7 @@ from std_srvs.srv import Trigger
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+DIAGNOSTICS_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)  # /diagnostics: every message
 
 
 class ProfileError(ValueError):
@@ -153,6 +155,9 @@ class Operator(Node):
         self._samples: list[tuple[float, float]] | None = None
         self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
         self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, DIAGNOSTICS_QOS)
+        self.diag_sim_time_s = -math.inf  # the rig's simulated time in its last diagnostics
+        self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
         # set by main's SIGINT/SIGTERM handler; the profile stops at the next spin (see _spin)
         self.stop_requested = threading.Event()
         self.pubs = {
@@ -173,6 +178,15 @@ class Operator(Node):
             self.time_s = t
             self.airspeed_mps = msg.vector.x
         self._last_msg_wall = time.monotonic()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if "sim_time_s" not in values or "aborts" not in values:
+                continue  # not the rig's
+            self.diag_sim_time_s = max(self.diag_sim_time_s, float(values["sim_time_s"]))
+            if values.get("last_abort_time_s"):
+                self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
 
     def _on_tip(self, msg: PointStamped) -> None:
         if self._samples is not None:
@@ -252,7 +266,16 @@ class Operator(Node):
                 f"step {s.index}: {s.step} t = {s.t_end_s:.2f} s U = {s.measured_mps:.2f} m/s", throttle_duration_sec=0.0
             )
         self._samples = None
+        self._await_diagnostics(self.time_s)
+        annotate_aborts(out, self.aborts)
         return out
+
+    def _await_diagnostics(self, t_s: float, timeout_s: float = 3.0) -> None:
+        """Until the rig's diagnostics (published at diagnostics_rate_hz of wall time) cover simulated time t_s, so
+        an abort near the end is reported; at most ``timeout_s`` of wall time."""
+        deadline = time.monotonic() + timeout_s
+        while self.diag_sim_time_s < t_s and time.monotonic() < deadline:
+            self._spin(0.05)
 
     def _ramp(self, to_mps: float, rate_mps2: float) -> None:
         start, t0 = self.commanded_mps, self.time_s
@@ -266,6 +289,22 @@ class Operator(Node):
             if frac >= 1.0:
                 return
             self._spin(0.02)
+
+
+def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) -> None:
+    """Note each abort (simulated time -> reason) on the step during which it happened, and "rejected (rig
+    aborted)" on the command steps after it until a reset step: the rig refuses commands until reset."""
+    for t_abort, reason in sorted(aborts.items()):
+        started = [s for s in summary if s.t_start_s <= t_abort]
+        if not started:
+            continue
+        hit = started[-1]
+        hit.note = "; ".join(x for x in (hit.note, f"rig aborted at t = {t_abort:.2f} s: {reason}") if x)
+        for s in summary[summary.index(hit) + 1:]:
+            if s.step.startswith("reset"):
+                break
+            if s.step.split()[0] in ("airspeed", "force", "shaker", "ramp"):
+                s.note = s.note or "rejected (rig aborted; reset to go on)"
 
 
 def format_summary(summary: Sequence[StepSummary]) -> str:
