@@ -446,7 +446,7 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
     ramp = next(r for r in rows if r[1] == "ramp")
     assert num(ramp[-4]) == 3.0  # commanded at the end of the ramp
     abort_line = next(line for line in proc.stdout.splitlines() if line.split()[1:2] == ["abort"])
-    assert "rig aborted at t = " in abort_line, proc.stdout  # from the rig's diagnostics
+    assert "aborted at t = " in abort_line and "rig aborted" not in proc.stdout, proc.stdout  # said once, by the rig
     bad = subprocess.run([PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(tmp_path / "missing.yaml")],
                          env=ros_env, capture_output=True, text=True, timeout=30, check=False)
     assert bad.returncode == 2 and "not found" in bad.stderr
@@ -742,3 +742,7 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
     assert steps[1].note == "rig aborted at t = 12.50 s: tip |w/L| = 0.93 exceeds the limit 0.926"
     assert steps[2].note.startswith("rejected") and steps[3].note == ""  # a dwell sends nothing
     assert steps[4].note == "reset" and steps[5].note == "" and steps[0].note == ""
+    own = [StepSummary(1, "abort", 1.0, 1.1, note="aborted at t = 1.120 s; airspeed ramping to 0"),
+           StepSummary(2, "reset", 1.1, 1.2, note="reset")]
+    annotate_aborts(own, {1.12: "operator abort"})  # the operator's own abort step already says it
+    assert [s.note for s in own] == ["aborted at t = 1.120 s; airspeed ramping to 0", "reset"]

@@ -561,7 +561,9 @@ class RigNode(Node):
         return r
 
     def _publish_block(self, block: ReadingBlock) -> None:
-        """Samples to sinks, topics and recorders (one serialisation each); the shape at the last sample if due."""
+        """Samples to sinks, topics and recorders (one serialisation, one bag write per block), then the shape of
+        each sample that is due (a recorded block's shapes follow its readings: log times overlap by at most one
+        block, which MCAP's per-chunk indexes and log-time-ordered readers take as they come)."""
         if not len(block):
             return
         self.rig.emit_block(block)
@@ -569,22 +571,27 @@ class RigNode(Node):
         pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
                 (self.pub_truth, msgs.truth))
         encoded_block = msgs.encode_block(block, self._stamp_offset_ns)
-        times, n, first = block.time_s, len(block), 0
-        while first < n:  # readings up to each shape sample, then that shape (the order of one block per shape)
+        if encoded_block is not None:
+            self._publish_encoded(pubs, encoded_block)
+        else:
+            self._publish_each(pubs, block, recording)
+        self._publish_due_shapes(block)
+
+    def _publish_due_shapes(self, block: ReadingBlock) -> None:
+        """The shape at each sample that reaches the next shape time (of that sample's q if the stepper can draw
+        it, else only at the block's last sample: such blocks end at the shape samples)."""
+        times, n, aborted = block.time_s, len(block), block.state == ABORTED
+        while True:
             due = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
-            if due < first:
-                due = first
-            last = min(due, n - 1) if self._shape_of_q else n - 1
-            part = slice(first, last + 1)
-            if encoded_block is not None:
-                self._publish_encoded(pubs, encoded_block.part(part))
-            else:
-                self._publish_each(pubs, block.part(part), recording)
-            t = float(times[last])
-            if t >= self._next_shape_s - 1e-9:
-                self._next_shape_s = t + self._shape_period_s
-                self._publish_shape(t, block.state == ABORTED, block.q[last] if self._shape_of_q else None)
-            first = last + 1
+            if due >= n:
+                return
+            if not self._shape_of_q:
+                due = n - 1
+            t = float(times[due])
+            self._next_shape_s = t + self._shape_period_s
+            self._publish_shape(t, aborted, block.q[due] if self._shape_of_q else None)
+            if not self._shape_of_q:
+                return
 
     def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
         """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its

@@ -295,6 +295,8 @@ def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) ->
     """Note each abort (simulated time -> reason) on the step during which it happened, and "rejected (rig
     aborted)" on the command steps after it until a reset step: the rig refuses commands until reset."""
     for t_abort, reason in sorted(aborts.items()):
+        if any(f"aborted at t = {t_abort:.3f} s" in s.note for s in summary):
+            continue  # the operator's own abort step: the rig's answer already says when
         started = [s for s in summary if s.t_start_s <= t_abort]
         if not started:
             continue
