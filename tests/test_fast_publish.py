@@ -103,6 +103,21 @@ def test_shape_template_decodes_to_the_marker() -> None:
         assert type(shape.message(aborted)) is Marker
 
 
+def test_shape_block_rows_are_the_single_shapes() -> None:
+    """A block's shapes packed at once (the fast node's one bag write per block) are byte for byte pack()."""
+    x = np.linspace(0.0, 1.0, 31)
+    shape = messages.ShapeCdr(0.1, 0.3, x)
+    rng = np.random.default_rng(3)
+    stamps = np.array([5, 1_000_000_000, 987_654_321_012, 2**40])
+    z = rng.normal(size=(4, 31))
+    z[2, 7] = np.inf
+    for aborted in (False, True):
+        rows = shape.pack_block(stamps, z, aborted)
+        assert rows.dtype == np.uint8 and rows.shape[0] == 4
+        for k in range(4):
+            assert rows[k].tobytes() == shape.pack(int(stamps[k]), z[k], aborted)
+
+
 def _write_both(tmp_path: Path, chunk_size: int) -> tuple[Path, Path, list]:
     rng = np.random.default_rng(7)
     msgs = messages.ReadingMessages([f"q{k + 1}" for k in range(N_MODES)], 0.5, 0.3)

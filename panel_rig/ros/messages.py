@@ -311,6 +311,19 @@ class ShapeCdr:
         view[:] = np.where(np.isfinite(z), z, 0.0)
         return bytes(buf)
 
+    def pack_block(self, stamps_ns: np.ndarray, z_m: np.ndarray, aborted: bool) -> np.ndarray:
+        """K shapes at once: row k is :meth:`pack` (``stamps_ns[k]``, ``z_m[k]``), as a (K, size) uint8 array."""
+        buf, stamp_at, first, stride, _ = self._templates[aborted]
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        z = np.asarray(z_m, dtype=float).reshape(stamps.size, -1)
+        raw = np.tile(np.frombuffer(bytes(buf), dtype=np.uint8), (stamps.size, 1))
+        sec, nanosec = np.divmod(stamps, 1_000_000_000)
+        raw[:, stamp_at:stamp_at + 4] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
+        raw[:, stamp_at + 4:stamp_at + 8] = nanosec.astype("<u4").view(np.uint8).reshape(-1, 4)
+        at = (first + stride * np.arange(z.shape[1]))[:, None] + np.arange(8)
+        raw[:, at.reshape(-1)] = np.where(np.isfinite(z), z, 0.0).astype("<f8").view(np.uint8).reshape(stamps.size, -1)
+        return raw
+
 
 _SENTINEL_INTS = (0x5A3B1C2D, 0x6B2C3D4E)
 

@@ -580,18 +580,43 @@ class RigNode(Node):
     def _publish_due_shapes(self, block: ReadingBlock) -> None:
         """The shape at each sample that reaches the next shape time (of that sample's q if the stepper can draw
         it, else only at the block's last sample: such blocks end at the shape samples)."""
-        times, n, aborted = block.time_s, len(block), block.state == ABORTED
+        times, n, due = block.time_s, len(block), []
         while True:
-            due = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
-            if due >= n:
-                return
+            k = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
+            if k >= n:
+                break
+            k = k if self._shape_of_q else n - 1
+            due.append(k)
+            self._next_shape_s = float(times[k]) + self._shape_period_s
             if not self._shape_of_q:
-                due = n - 1
-            t = float(times[due])
-            self._next_shape_s = t + self._shape_period_s
-            self._publish_shape(t, aborted, block.q[due] if self._shape_of_q else None)
-            if not self._shape_of_q:
-                return
+                break
+        if not due:
+            return
+        aborted = block.state == ABORTED
+        if self._shape_of_q and self._shape_cdr.ok and len(due) > 1:
+            self._publish_shapes(times[due], block.q[due], aborted)
+            return
+        for k in due:
+            self._publish_shape(float(times[k]), aborted, block.q[k] if self._shape_of_q else None)
+
+    def _publish_shapes(self, times_s: np.ndarray, q: np.ndarray, aborted: bool) -> None:
+        """Several shapes (of modal coordinates q, one row each) at once: drawn together, one bag write, published
+        one by one if anyone subscribes (a volatile depth-1 topic: with no subscriber a publish reaches nobody)."""
+        z_m = np.asarray(self.rig.shape_w_over_L(self._x_over_L, q), dtype=float) * self.cfg.panel_length_m
+        stamps = np.array([self._stamp_ns(float(t)) for t in times_s], dtype=np.int64)
+        rows = self._shape_cdr.pack_block(stamps, z_m, aborted)
+        for rec in self._recorders:
+            try:
+                rec.write_block([(self._full[self.pub_shape], self._shape_cdr.message(aborted))], stamps, [rows],
+                                qos="reliable")
+            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
+                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        if self.pub_shape.get_subscription_count():
+            for row in messages.EncodedBlock.rows(rows):
+                self.pub_shape.publish(row)
+        if self._rerun is not None:
+            for t, z in zip(times_s, z_m):
+                self._queue_rerun_shape(float(t), z)
 
     def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
         """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
@@ -636,11 +661,14 @@ class RigNode(Node):
                                       aborted)
             self._publish(self.pub_shape, marker, stamp, qos="reliable")
         if self._rerun is not None:
-            try:
-                z_all = np.concatenate([np.zeros(self._shape_x_m.size - z_m.size), z_m])
-                self._rerun.queue_shape(t, self._shape_x_m, np.where(np.isfinite(z_all), z_all, 0.0))
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
+            self._queue_rerun_shape(t, z_m)
+
+    def _queue_rerun_shape(self, t: float, z_m: np.ndarray) -> None:
+        try:
+            z_all = np.concatenate([np.zeros(self._shape_x_m.size - z_m.size), z_m])
+            self._rerun.queue_shape(t, self._shape_x_m, np.where(np.isfinite(z_all), z_all, 0.0))
+        except Exception as exc:  # noqa: BLE001
+            self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
