@@ -16,8 +16,9 @@ from typing import Any
 
 
 def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | None = None,
-         variant: str = "full", rerun: bool = True) -> dict[str, float]:
-    """One in-process node run; ``sinks_dir``: record a bag there (and a Rerun .rrd if ``rerun``)."""
+         variant: str = "full", rerun: bool = True, turbulence: bool = True) -> dict[str, float]:
+    """One in-process node run; ``sinks_dir``: record a bag there (and a Rerun .rrd if ``rerun``); ``turbulence``
+    False: a quiet tunnel (tunnel.turbulence.intensity 0)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -34,7 +35,7 @@ def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | No
             Parameter("tunnel.time_constant_s", value=0.2),
             Parameter("safety.max_tip_w_over_L", value=1.9),
             Parameter("safety.wall_clearance_m", value=10.0),
-        ] + ([] if sinks_dir is None else [
+        ] + ([] if turbulence else [Parameter("tunnel.turbulence.intensity", value=0.0)]) + ([] if sinks_dir is None else [
             Parameter("record", value=True),
             Parameter("bag_dir", value=os.path.join(sinks_dir, "bags")),
         ] + ([Parameter("rerun", value=f"save:{os.path.join(sinks_dir, 'bench.rrd')}")] if rerun else [])),
@@ -69,6 +70,12 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
         exact_sinks = _run(True, fast_duration_s, airspeed_mps, sinks_dir=tmp, variant="exact")
     with tempfile.TemporaryDirectory() as tmp:  # exact, recording (the bag) only: issue 8's "with recording on"
         exact_rec = _run(True, fast_duration_s, airspeed_mps, sinks_dir=tmp, variant="exact", rerun=False)
+    # issue 9: what the turbulence costs the fast node (no sinks): interleaved runs, best of 3 each (the least
+    # disturbed by other load on the machine)
+    quiet, windy = [], []
+    for _ in range(3):
+        quiet.append(_run(True, fast_duration_s, airspeed_mps, turbulence=False)["realtime_factor"])
+        windy.append(_run(True, fast_duration_s, airspeed_mps)["realtime_factor"])
     return {
         "airspeed_mps": airspeed_mps,
         "duration_s": duration_s,
@@ -83,6 +90,8 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
         "fast_realtime_factor_all_sinks": round(fast_sinks["realtime_factor"], 2),
         "fast_exact_realtime_factor_all_sinks": round(exact_sinks["realtime_factor"], 2),
         "fast_exact_realtime_factor_recording": round(exact_rec["realtime_factor"], 2),
+        "fast_quiet_tunnel_realtime_factor": round(max(quiet), 2),
+        "fast_turbulence_cost_fraction": round(max(quiet) / max(windy) - 1.0, 3),
     }
 
 
