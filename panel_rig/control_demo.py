@@ -20,7 +20,6 @@ import json
 import math
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
@@ -29,6 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from panel_rig.processes import stop
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
@@ -39,6 +40,7 @@ SETTLE_S, WINDOW_S = 1.0, 3.0  # per onset step: tunnel settling, then the growt
 #: measures the turbulence, not the closed loop)
 ONSET_TAP_NPM = 0.5
 RATE_HZ = 500.0
+STOP_TIMEOUT_S = 20.0  # wall: SIGINT, then this long for the node to close its bag
 
 
 class DemoError(RuntimeError):
@@ -116,16 +118,6 @@ class _Client:
         self.ex.shutdown()
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.ctx)
-
-
-def _stop(proc: subprocess.Popen, timeout_s: float = 20.0) -> int:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait()
 
 
 def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -> dict[str, Any]:
@@ -227,8 +219,8 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         }
     finally:
         client.close()
-        ctl_code = _stop(ctl)
-        node_code = _stop(node)
+        ctl_code = stop(ctl, STOP_TIMEOUT_S)
+        node_code = stop(node, STOP_TIMEOUT_S)
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
     summary.update(bag=str(new[-1]) if new else None, rerun=str(rrd) if rrd.exists() else None,
                    node_exit=node_code, controller_exit=ctl_code, node_log=str(node_log))

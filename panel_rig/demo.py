@@ -12,12 +12,13 @@ import argparse
 import json
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+from panel_rig.processes import stop
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
@@ -36,17 +37,6 @@ def _env(log_dir: Path) -> dict[str, str]:
 def _new_bag(bag_dir: Path, before: set[str]) -> Path | None:
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
     return new[-1] if new else None
-
-
-def _stop(proc: subprocess.Popen) -> int:
-    """SIGINT, wait; SIGKILL only if it does not stop."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(NODE_STOP_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        return proc.wait()
 
 
 def _analyze(bag: Path, out: Path) -> str:
@@ -87,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", "--profile", args.profile, "--namespace", "/rig",
                              "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
     finally:
-        node_code = _stop(node)
+        node_code = stop(node, NODE_STOP_TIMEOUT_S)
     wall_s = time.monotonic() - t0
     print(f"panel-rig demo: profile {args.profile}, node exit {node_code}, operator exit {op.returncode}, "
           f"{wall_s:.1f} s wall")

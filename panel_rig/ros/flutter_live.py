@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import random
-import signal
 import subprocess
 import sys
 import tempfile
@@ -15,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from panel_rig.processes import stop
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
@@ -87,7 +88,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
     finally:
-        code = _stop(node)
+        code = stop(node, STOP_WAIT_S)
     bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
     res.bag = str(bags[-1]) if bags and bag_dir is not None else None
     out = res.as_dict()
@@ -158,14 +159,3 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
         client.destroy_node()
         executor.shutdown()
         rclpy.shutdown(context=ctx)
-
-
-def _stop(node: subprocess.Popen) -> int:
-    """SIGINT (the node closes its bag), then wait; kill only if it does not stop."""
-    if node.poll() is None:
-        node.send_signal(signal.SIGINT)
-    try:
-        return node.wait(STOP_WAIT_S)
-    except subprocess.TimeoutExpired:
-        node.kill()
-        return node.wait()
