@@ -144,8 +144,14 @@ def test_closed_loop_over_topics(env: dict[str, str], model: Any, tmp_path: Path
         assert float(d["control_latency_p99_ms"]) == pytest.approx(1e3 * FAST_DELAY_S, abs=1e-3), d
         # every command echoes the stamp of a tip reading: wait until this client has taken the readings the last
         # 50 commands answered (they may still be queued here), then compare
-        client.wait(lambda: len(client.got["cmd"]) >= 50, 10.0, "50 of the controller's commands at this client")
-        cmds = [(m.header.stamp.sec, m.header.stamp.nanosec) for m in client.got["cmd"][-50:]]
+        # (only commands answering readings published after this client's tip subscription matched: discovery can
+        # match the controller's command topic here before the node's readings)
+        def answered() -> list[Any]:
+            tips = client.got["tip"]
+            return [m for m in client.got["cmd"] if tips and stamp_s(m) >= stamp_s(tips[0])]
+
+        client.wait(lambda: len(answered()) >= 50, 20.0, "50 commands answering readings this client can see")
+        cmds = [(m.header.stamp.sec, m.header.stamp.nanosec) for m in answered()[-50:]]
         client.wait(lambda: client.got["tip"] and stamp_s(client.got["tip"][-1]) >= max(s + n * 1e-9 for s, n in cmds),
                     10.0, "the readings the commands answered")
         tips = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in client.got["tip"]}
