@@ -27,6 +27,12 @@ from panel_rig.model.kernel_exact import FORCE_WORK_ROWS, exact_force, exact_tip
 OK, NON_FINITE, OVER_BOUND = 0, 1, 2
 MASS_MIDPOINT, MASS_AT_START, MASS_LITERAL = 0, 1, 2  # where the nonlinear mass dM(q) is evaluated
 MAX_ITER = 30
+# the Newton test is relative to the new velocity, floored at REST_SCALE |q| / dt: near a static deflection (a held
+# force in a quiet tunnel) the velocity decays towards 0 while the residual's round-off stays at the static load's
+# (~1e-16 omega^2 |q| dt), so a purely relative test was never met and every step ran all MAX_ITER iterations
+# (12-14 us a step instead of 1.5); the floor is a velocity that moves q by 1e-3 |q| / 2 in a step, far below any
+# motion's (LCO: ~|q| omega, omega dt ~ 0.07), so a moving panel's test is unchanged
+REST_SCALE = 1e-3
 # exact (elastica) structure, the step's Newton iteration (profile and measurements: docs/validation.md, section 5):
 EX_RHO = 0.03  # a fresh structural Newton matrix when an update contracts by less than this factor
 EX_KEEP, EX_WAIT = 1e-3, 64  # a step first tries the last step's matrix; if an iteration then contracts by less
@@ -193,6 +199,16 @@ def _extrapolate(a, m, i):
 
 
 @njit(cache=True)
+def newton_scale(x, q, dt):
+    """The velocity scale of the step's Newton test |update| <= tol * scale: the largest new velocity, floored at
+    REST_SCALE |q| / dt (see REST_SCALE) and at 1e-12."""
+    scale = 1e-12
+    for i in range(x.shape[0]):
+        scale = max(scale, abs(x[i]), REST_SCALE * abs(q[i]) / dt)
+    return scale
+
+
+@njit(cache=True)
 def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     """Advance (q, v, xi) in place over len(U_seq) steps of the :class:`KernelModel` ``km``; tip w/L of each
     step into tip_out.
@@ -349,12 +365,11 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
                     for j in range(n):
                         J[i, j] += ex_J[i, j]
             _solve_inplace(J, res)
-            scale = 1e-12
             big = 0.0
             for i in range(n):
                 x[i] -= res[i]
-                scale = max(scale, abs(x[i]))
                 big = max(big, abs(res[i]))
+            scale = newton_scale(x, q, dt)
             if exact and it > 0 and big > (EX_KEEP if ex_kept else EX_RHO) * big_prev:
                 ex_new_j = True  # slow contraction: a fresh Newton matrix (and no kept one for a while)
                 if ex_kept:
