@@ -439,3 +439,29 @@ def test_onset_ignores_plateaus_after_the_first_lco() -> None:
     onset = estimate_onset(plateaus)
     assert onset["bracket_low_mps"] == 10.0 and onset["bracket_high_mps"] == 10.8
     assert onset["extrapolated_mps"] is None and onset["extrapolation_points"] == []
+
+
+def test_random_response_in_turbulence_is_not_growth() -> None:
+    """A stationary random response (a lightly damped mode driven by white noise, as the tunnel's turbulence drives
+    the panel below flutter) wanders in level over a few seconds; it is not "growing" (the demo's 8 m/s plateau
+    was, at +0.08 1/s, which put the onset bracket at 0-8 m/s). A noisy exponential growth still is."""
+    from panel_rig.analysis.bag_analysis import analyze_plateau
+
+    dt, n = 1.0 / 500.0, 2500  # a 5 s plateau at 500 Hz
+    t = np.arange(n) * dt
+    u = np.full(n, 8.0)
+    omega, zeta = 2 * np.pi * 4.2, 0.05  # the first mode
+    a1, a2 = 2 * np.exp(-zeta * omega * dt) * np.cos(omega * dt), -np.exp(-2 * zeta * omega * dt)
+    statuses = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        e = rng.normal(size=n + 2000)
+        y = np.zeros(n + 2000)
+        for k in range(2, y.size):
+            y[k] = a1 * y[k - 1] + a2 * y[k - 2] + e[k]
+        w = 1e-4 * y[2000:] / np.std(y[2000:])  # stationary (2000 samples of start-up dropped)
+        statuses.append(analyze_plateau(t, w, u, {}, 0, n)["status"])
+    assert "growing" not in statuses, statuses
+    rng = np.random.default_rng(1)
+    growth = 1e-4 * np.exp(0.5 * t) * np.sin(2 * np.pi * 22.8 * t) + 2e-6 * rng.normal(size=n)
+    assert analyze_plateau(t, growth, u, {}, 0, n)["status"] == "growing"

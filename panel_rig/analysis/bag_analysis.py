@@ -23,7 +23,10 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   the irregular (bursting) LCO of the full nonlinear model, if RMS >= ``irregular_lco_min_rms`` and the
   oscillation is sustained (RMS of the last third of the metrics window within 0.5-2 of the first
   third) or its envelope is not exponential (R^2 of the log-envelope line < 0.7);
-  else ``growing`` if a rate > ``max_steady_rate_per_s``; else ``decaying`` if the free-response
+  else ``growing`` if both rates > ``max_steady_rate_per_s`` and the log-envelope is a line (R^2 >=
+  ``min_growth_r2``): the tunnel's turbulence-driven random response wanders by more than that rate over a few
+  seconds and was called growing when either rate was (the demo's 8 m/s plateau, which put the onset bracket
+  below it); else ``decaying`` if the free-response
   rate < ``-max_steady_rate_per_s`` and the envelope rose above ``quiet_rms``; else ``quiet``.
 * **Onset**: bracketed by the first unstable plateau in time (``lco`` or ``growing``; also the first
   ``lco`` one is named) and the fastest stable (``decaying`` or ``quiet``) plateau below it *and before
@@ -64,6 +67,7 @@ class Criteria:
     max_steady_rate_per_s: float = 0.03
     irregular_lco_min_rms: float = 0.05
     quiet_rms: float = 1e-7
+    min_growth_r2: float = 0.7
     min_extrapolation_airspeed_mps: float = 0.5
     extrapolation_points: int = 3
 
@@ -166,7 +170,7 @@ def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sus
         return "lco"
     if rms_late >= crit.irregular_lco_min_rms and (0.5 <= sustain <= 2.0 or r2 < 0.7):
         return "lco"
-    if (rate > lim or rate_late > lim) and peak_env > crit.quiet_rms:
+    if rate > lim and rate_late > lim and peak_env > crit.quiet_rms and r2 >= crit.min_growth_r2:
         return "growing"
     if rate < -lim and peak_env > crit.quiet_rms:
         return "decaying"
