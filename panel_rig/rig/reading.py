@@ -40,14 +40,6 @@ class ReadingBlock:
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
 
-    def part(self, index: slice) -> ReadingBlock:
-        """Samples ``index`` (views; the block's state)."""
-        if index.start in (0, None) and (index.stop is None or index.stop >= len(self)):
-            return self
-        return ReadingBlock(self.time_s[index], self.airspeed_mps[index], self.shaker_force_npm[index],
-                            self.tip_w_m[index], self.tip_w_over_L[index], self.q[index], self.qdot_per_s[index],
-                            self.aero_force_npm[index], self.state)
-
     def readings(self) -> list[Reading]:
         """One :class:`Reading` per sample."""
         return [

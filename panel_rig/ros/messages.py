@@ -60,12 +60,6 @@ class EncodedBlock:
     def __len__(self) -> int:
         return int(self.stamps_ns.shape[0])
 
-    def part(self, index: slice) -> EncodedBlock:
-        """Samples ``index`` (a view)."""
-        if index.start in (0, None) and (index.stop is None or index.stop >= len(self)):
-            return self
-        return EncodedBlock(self.stamps_ns[index], tuple(p[index] for p in self.payloads), self.clock[index])
-
     @staticmethod
     def rows(payload: np.ndarray) -> list[bytes]:
         """The messages of one topic as ``bytes`` (for ``Publisher.publish``)."""
