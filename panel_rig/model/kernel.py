@@ -220,6 +220,20 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
 
     Returns (status, steps_done): status OK, NON_FINITE or OVER_BOUND (state left at the last good step).
     """
+    none = np.zeros((0, q.shape[0]))
+    none_xi = np.zeros((0, xi.shape[0]))
+    status, done, _ = _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, np.zeros(0, np.int64),
+                             none, none, none_xi, none, none, none_xi)
+    return status, done
+
+
+@njit(cache=True)
+def _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, xi_pre, q_post, v_post, xi_post):
+    """:func:`march`, keeping the state before and after the step ends[s] - 1 for each s (``ends`` increasing,
+    every end >= 1; empty: no samples). One loop over all steps: the scratch arrays, the airspeed-dependent
+    matrices and the exact structure's predictor history and Newton matrix carry on across the samples.
+
+    Returns (status, steps_done, samples_done)."""
     dt, dx, M0, C, Ca, K, Ka, Qxi, Gv, Gs = km.dt, km.dx, km.M0, km.C, km.Ca, km.K, km.Ka, km.Qxi, km.Gv, km.Gs
     blk_off, blk_len, lam_a, lam_b = km.blk_off, km.blk_len, km.lam_a, km.lam_b
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
@@ -263,7 +277,14 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
     U_prev = -1.0
     ng = Pg_seq.shape[1]
     fg = np.zeros(n)
+    n_ends = ends.shape[0]
+    sample = 0
     for step in range(U_seq.shape[0]):
+        capture = sample < n_ends and step == ends[sample] - 1
+        if capture:
+            q_pre[sample] = q
+            v_pre[sample] = v
+            xi_pre[sample] = xi
         U = U_seq[step]
         if U != U_prev:  # airspeed-dependent matrices: W = (I-hL)^{-1}(Gv + U h Gs), Cu, Ku, QW
             # (in turbulence u' changes U every step: the block inverses are formed once here, one division per
@@ -398,9 +419,9 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
         if exact and finite:
             tip = exact_tip_near(q_new, ex_psi, ex_w, ex_work)
         if not finite:
-            return NON_FINITE, step
+            return NON_FINITE, step, sample
         if abs(tip) > tip_bound:
-            return OVER_BOUND, step
+            return OVER_BOUND, step, sample
         for j in range(n):
             q[j] += h * (x[j] + v[j])
             if exact:
@@ -415,7 +436,12 @@ def march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq):
         ex_hist = min(ex_hist + 1, EX_PRED)
         ex_wait = max(ex_wait - 1, 0)
         tip_out[step] = tip
-    return OK, U_seq.shape[0]
+        if capture:
+            q_post[sample] = q
+            v_post[sample] = v
+            xi_post[sample] = xi
+            sample += 1
+    return OK, U_seq.shape[0], sample
 
 
 def gust_projection(km: KernelModel) -> np.ndarray:
@@ -454,27 +480,9 @@ def march_sampled(q, v, xi, U_seq, F_seq, ends, km, tip_out, q_pre, v_pre, xi_pr
                   pg, Pg_seq):
     """:func:`march` over segments ending at the increasing step counts ``ends`` (each >= 1 step), keeping
     the state before and after the last step of each segment (for the aero force at a sample). Gust ``pg``,
-    ``Pg_seq`` as in :func:`march`.
+    ``Pg_seq`` as in :func:`march`. One march over all the steps (see :func:`_march`).
 
     Returns (status, steps_done, segments_done); on failure the state is at the last good step.
     """
-    start = 0
-    for s in range(ends.shape[0]):
-        end = ends[s]
-        if end - 1 > start:
-            st, done = march(q, v, xi, U_seq[start:end - 1], F_seq[start:end - 1], km, tip_out[start:end - 1],
-                             pg, Pg_seq[start:end - 1])
-            if st != OK:
-                return st, start + done, s
-        q_pre[s] = q
-        v_pre[s] = v
-        xi_pre[s] = xi
-        st, done = march(q, v, xi, U_seq[end - 1:end], F_seq[end - 1:end], km, tip_out[end - 1:end],
-                         pg, Pg_seq[end - 1:end])
-        if st != OK:
-            return st, end - 1, s
-        q_post[s] = q
-        v_post[s] = v
-        xi_post[s] = xi
-        start = end
-    return OK, start, ends.shape[0]
+    return _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, xi_pre, q_post, v_post,
+                  xi_post)
