@@ -69,36 +69,37 @@ def test_step_force_and_newton_matrix_equal_the_lagrangian_terms(n):
     cos/sin (near=True) and the step's tip from them equal the direct evaluation."""
     kin = exact_kinematics(n)
     quad = (kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem)
+    dense = (kin.psi, kin.quad.w, kin.quad.inertia_operator())  # exact_force's quadrature: S = R^T diag(w) R
     rng = np.random.default_rng(n)
     q, v, a = rng.normal(size=n), 100.0 * rng.normal(size=n), 1e4 * rng.normal(size=n)
     m, fl, dt = 0.02, 3.0, 1 / 2048
     M, h, b, Jv = np.zeros((n, n)), np.zeros(n), np.zeros(n), np.zeros((n, n))
     exact_eval(q, v, *quad, m, False, M, h, b, Jv, np.zeros((3 * n + 7, kin.psi.shape[1])))
     ref = M @ a + h - fl * b
-    work, jwork = np.zeros((FORCE_WORK_ROWS, kin.psi.shape[1])), np.zeros((3, kin.psi.shape[1], 2 * n))
+    work, jwork = np.zeros((FORCE_WORK_ROWS, kin.psi.shape[1])), np.zeros((2, 2 * n, kin.psi.shape[1]))
     F, J = np.zeros(n), np.zeros((n, n))
     line = (dt / 4, 0.5, 1 / dt)
-    exact_force(q, v, a, fl, *quad, m, True, *line, F, J, work, jwork, False)
+    exact_force(q, v, a, fl, *dense, m, True, *line, F, J, work, jwork, False)
     np.testing.assert_allclose(F, ref, rtol=1e-12, atol=1e-12 * np.max(np.abs(ref)))
     fd = np.zeros((n, n))
     for j in range(n):
         e = np.zeros(n)
         e[j] = 1e-3
         Fp, Fm = np.zeros(n), np.zeros(n)
-        exact_force(q + line[0] * e, v + line[1] * e, a + line[2] * e, fl, *quad, m, False, 0, 0, 0, Fp, J * 0, work,
+        exact_force(q + line[0] * e, v + line[1] * e, a + line[2] * e, fl, *dense, m, False, 0, 0, 0, Fp, J * 0, work,
                     jwork, False)
-        exact_force(q - line[0] * e, v - line[1] * e, a - line[2] * e, fl, *quad, m, False, 0, 0, 0, Fm, J * 0, work,
+        exact_force(q - line[0] * e, v - line[1] * e, a - line[2] * e, fl, *dense, m, False, 0, 0, 0, Fm, J * 0, work,
                     jwork, False)
         fd[:, j] = (Fp - Fm) / 2e-3
     np.testing.assert_allclose(J, fd, rtol=0, atol=1e-7 * np.max(np.abs(fd)))
     for dq in (1e-6, 0.03, 0.5):  # a Newton correction, a time step's change, a jump past the series' range
-        exact_force(q, v, a, fl, *quad, m, False, 0, 0, 0, F, J, work, jwork, False)
+        exact_force(q, v, a, fl, *dense, m, False, 0, 0, 0, F, J, work, jwork, False)
         q2 = q + dq * rng.normal(size=n)
         Fn, Fd = np.zeros(n), np.zeros(n)
         assert exact_tip_near(q2, kin.psi, kin.quad.w, work) == pytest.approx(exact_tip(q2, kin.psi, kin.quad.w),
                                                                               rel=1e-13, abs=1e-15)
-        exact_force(q2, v, a, fl, *quad, m, False, 0, 0, 0, Fn, J, work, jwork, True)
-        exact_force(q2, v, a, fl, *quad, m, False, 0, 0, 0, Fd, J, work, jwork, False)
+        exact_force(q2, v, a, fl, *dense, m, False, 0, 0, 0, Fn, J, work, jwork, True)
+        exact_force(q2, v, a, fl, *dense, m, False, 0, 0, 0, Fd, J, work, jwork, False)
         np.testing.assert_allclose(Fn, Fd, rtol=1e-13, atol=1e-13 * np.max(np.abs(Fd)))
 
 

@@ -84,6 +84,16 @@ class Quadrature:
         before = np.cumsum(totals, axis=-1) - totals
         return (within + before[..., None]).reshape(f.shape)
 
+    def running_matrix(self) -> np.ndarray:
+        """R (N, N): (R f)_p = int_0^{s_p} f, the matrix form of :meth:`running`."""
+        return self.running(np.eye(self.s.shape[0])).T
+
+    def inertia_operator(self) -> np.ndarray:
+        """S = R^T diag(w) R (N, N, symmetric): the kinetic energy's running integrals taken twice, the kernel's
+        inertia force applies it as one dense product (kernel_exact.exact_force)."""
+        R = self.running_matrix()
+        return np.ascontiguousarray(R.T @ (self.w[:, None] * R))
+
 
 @lru_cache(maxsize=None)
 def quadrature(n_elem: int = N_ELEM, n_gauss: int = N_GAUSS) -> Quadrature:

@@ -87,14 +87,12 @@ class KernelModel(NamedTuple):
     Gg: np.ndarray  # (r, km)
     # exact (elastica) structure: theta = q . psi at Gauss points (kernel_exact.py, elastica.py); when ``exact``
     # the cubic terms are off (use_k = use_m = False), M(q), h(q, v) and the dead tip force L B(1; q) replace
-    # them and the reported tip is the exact w(1)/L = int sin(theta). ``ex_run``/``ex_w_elem``: running-integral
-    # matrix and weights of one of the ``ex_n_elem`` elements; ``ex_length``: L (m).
+    # them and the reported tip is the exact w(1)/L = int sin(theta). ``ex_S``: the inertia operator R^T diag(w) R
+    # of the quadrature (elastica.Quadrature.inertia_operator); ``ex_length``: L (m).
     exact: bool = False
     ex_psi: np.ndarray = np.zeros((0, 0))
     ex_w: np.ndarray = np.zeros(0)
-    ex_run: np.ndarray = np.zeros((0, 0))
-    ex_w_elem: np.ndarray = np.zeros(0)
-    ex_n_elem: int = 0
+    ex_S: np.ndarray = np.zeros((0, 0))
     ex_length: float = 0.0
 
 
@@ -238,9 +236,9 @@ def _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, 
     blk_off, blk_len, lam_a, lam_b = km.blk_off, km.blk_len, km.lam_a, km.lam_b
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
-    exact, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem = km.exact, km.ex_psi, km.ex_w, km.ex_run, km.ex_w_elem, km.ex_n_elem
+    exact, ex_psi, ex_w, ex_S = km.exact, km.ex_psi, km.ex_w, km.ex_S
     ex_work = np.zeros((FORCE_WORK_ROWS, ex_psi.shape[1]))
-    ex_jwork = np.zeros((3, ex_psi.shape[1], 2 * q.shape[0]))
+    ex_jwork = np.zeros((2, 2 * q.shape[0], ex_psi.shape[1]))
     ex_J = np.zeros((q.shape[0], q.shape[0]))
     ex_F = np.zeros(q.shape[0])
     ex_a = np.zeros(q.shape[0])
@@ -361,9 +359,8 @@ def _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, 
                 for i in range(n):
                     Mt[i, i] -= m_scale
                     ex_a[i] = (x[i] - v[i]) / dt
-                exact_force(qm, vm, ex_a, F_seq[step] * km.ex_length, ex_psi, ex_w, ex_run, ex_w_elem, ex_n_elem,
-                            m_scale, ex_new_j, 0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork,
-                            it > 0)
+                exact_force(qm, vm, ex_a, F_seq[step] * km.ex_length, ex_psi, ex_w, ex_S, m_scale, ex_new_j,
+                            0.25 * dt, 0.5, 1.0 / dt, ex_F, ex_J, ex_work, ex_jwork, it > 0)
                 ex_new_j = False
             if use_m:
                 _nl_mass(qm if mass_mode == MASS_MIDPOINT else q, P_nl, m_scale, Mt)

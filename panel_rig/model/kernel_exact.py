@@ -1,8 +1,9 @@
 """Compiled (numba) evaluation of the exact (elastica) structure at one state; see elastica.py for the equations.
 
 The time step (kernel.march) uses :func:`exact_force`: the inertia force M(q) a + h(q, v) in d'Alembert form
-(four running integrals) and the step's exact Newton matrix. :func:`exact_eval` is the mass-matrix form of the
-same Lagrangian (M(q), h, dh/dv): the reference the tests hold exact_force to, and the linearisation's check.
+(the running integrals taken twice, as one dense operator S = R^T diag(w) R) and the step's exact Newton matrix.
+:func:`exact_eval` is the mass-matrix form of the same Lagrangian (M(q), h, dh/dv): the reference the tests hold
+exact_force to, and the linearisation's check.
 
 exact_eval, per call, at the quadrature points s_p: theta = q . psi, theta_dot = v . psi, the running integrals
 A_i = -int sin(theta) psi_i, B_i = int cos(theta) psi_i; then the mass matrix M(q) = m int (A A^T + B B^T),
@@ -195,8 +196,7 @@ FORCE_WORK_ROWS = 13
 
 
 @njit(cache=True, fastmath=True)
-def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq, cv, ca, F_out, J_out, work,
-                jwork, near):
+def exact_force(q, v, a, f_tip_n, psi, w, S, m_scale, jac, cq, cv, ca, F_out, J_out, work, jwork, near):
     """F_out = m_p L^3 [M(q) a + h(q, v)] - f_tip_n B(1; q): the strip's inertia force at acceleration a, less
     the generalised dead tip force (f_tip_n = F L, N/m x m). If ``jac``, also J_out = dF/dx along the
     line q = q0 + cq x, v = v0 + cv x, a = a0 + ca x (the time step's dependence on its unknown x = q_dot^{n+1};
@@ -205,14 +205,16 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
     The same discrete Lagrangian as :func:`exact_eval`, summed the other way round (d'Alembert along the
     strip): the point accelerations x_dd = R xi, w_dd = R eta with xi = -sin(theta) alpha - cos(theta) omega^2,
     eta = cos(theta) alpha - sin(theta) omega^2 (alpha = a . psi, omega = v . psi, R the running integral), and
-    F_i = m sum_k psi_ik [-sin(theta_k) (R^T w x_dd)_k + cos(theta_k) (R^T w w_dd)_k] since A_i = R(-sin(theta) psi_i),
-    B_i = R(cos(theta) psi_i). Four running integrals per evaluation whatever the number of modes (exact_eval:
-    2 n + 2 and the n^2 mass matrix); the Jacobian adds four per mode, evaluated side by side. Scratch: ``work``
-    (FORCE_WORK_ROWS, N), ``jwork`` (3, N, 2 n). ``near``: the angles are close to those of the previous call with
-    this ``work`` (a Newton iteration): cos and sin by rotating the previous ones (:func:`_rotated`)."""
+    F_i = m sum_k psi_ik [-sin(theta_k) (S xi)_k + cos(theta_k) (S eta)_k] since A_i = R(-sin(theta) psi_i),
+    B_i = R(cos(theta) psi_i); S = R^T diag(w) R (``S``, elastica.Quadrature.inertia_operator) is applied as one
+    dense (N, N) product, whatever the number of modes; the Jacobian applies it to the 2 n directions. (Dense
+    products over the N points vectorise: half the time of the element-wise running integrals, the same sums to
+    round-off.) Scratch: ``work`` (FORCE_WORK_ROWS, N), ``jwork`` (2, 2 n, N). ``near``: the angles are close to
+    those of the previous call with this ``work`` (a Newton iteration): cos and sin by rotating the previous ones
+    (:func:`_rotated`)."""
     n, npts = psi.shape
-    f, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
-    X, W, Xt, Wt, P1, P2, P3, TH = work[5], work[6], work[7], work[8], work[9], work[10], work[11], work[12]
+    xi, om, al, c, s = work[0], work[1], work[2], work[3], work[4]
+    eta, Xt, Wt, P1, P2, P3, TH = work[5], work[6], work[7], work[8], work[9], work[10], work[12]
     for p in range(npts):
         th = 0.0
         b = 0.0
@@ -230,23 +232,17 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
             s[p] = np.sin(th)
         TH[p] = th
     for p in range(npts):
-        f[p] = -s[p] * al[p] - c[p] * om[p] * om[p]  # xi
-    cumulative(f, run, w_elem, n_elem, X)
-    if jac:  # d xi / dx_j = psi_j P1, d eta / dx_j = psi_j P2 (theta, omega, alpha move by cq, cv, ca psi_j)
+        o2 = om[p] * om[p]
+        xi[p] = -s[p] * al[p] - c[p] * o2
+        eta[p] = c[p] * al[p] - s[p] * o2
+        Xt[p] = 0.0
+        Wt[p] = 0.0
+    for k in range(npts):  # Xt = S xi, Wt = S eta (S symmetric: row k is column k, the point p innermost)
+        xk = xi[k]
+        ek = eta[k]
         for p in range(npts):
-            P2[p] = cq * f[p] + ca * c[p] - 2.0 * cv * s[p] * om[p]
-    for p in range(npts):
-        f[p] = c[p] * al[p] - s[p] * om[p] * om[p]  # eta
-    cumulative(f, run, w_elem, n_elem, W)
-    if jac:
-        for p in range(npts):
-            P1[p] = -cq * f[p] - ca * s[p] - 2.0 * cv * c[p] * om[p]
-    for p in range(npts):
-        f[p] = w[p] * X[p]
-    cumulative_T(f, run, w_elem, n_elem, Xt)
-    for p in range(npts):
-        f[p] = w[p] * W[p]
-    cumulative_T(f, run, w_elem, n_elem, Wt)
+            Xt[p] += S[k, p] * xk
+            Wt[p] += S[k, p] * ek
     for p in range(npts):
         al[p] = m_scale * (c[p] * Wt[p] - s[p] * Xt[p]) - f_tip_n * w[p] * c[p]  # G_p: alpha is no longer needed
     for i in range(n):
@@ -256,70 +252,29 @@ def exact_force(q, v, a, f_tip_n, psi, w, run, w_elem, n_elem, m_scale, jac, cq,
         F_out[i] = acc
     if not jac:
         return
-    for p in range(npts):  # d G_p = m (c dWt - s dXt) + psi_j P3 (the rotation of theta at p itself)
+    # d xi / dx_j = psi_j P1, d eta / dx_j = psi_j P2 (theta, omega, alpha move by cq, cv, ca psi_j), and
+    # d G_p = m (c dWt - s dXt) + psi_j P3 (the rotation of theta at p itself)
+    for p in range(npts):
+        P1[p] = -cq * eta[p] - ca * s[p] - 2.0 * cv * c[p] * om[p]
+        P2[p] = cq * xi[p] + ca * c[p] - 2.0 * cv * s[p] * om[p]
         P3[p] = cq * (f_tip_n * w[p] * s[p] - m_scale * (c[p] * Xt[p] + s[p] * Wt[p]))
-    # all 2n directions at once, the direction innermost (independent sums, not one chain per direction):
-    # columns j < n: d xi / dx_j, columns n + j: d eta / dx_j
-    D, Dc, tot = jwork[0], jwork[1], jwork[2, 0]
-    for p in range(npts):
-        for j in range(n):
-            D[p, j] = psi[j, p] * P1[p]
-            D[p, n + j] = psi[j, p] * P2[p]
-    cumulative_cols(D, run, w_elem, n_elem, Dc, tot)
-    for p in range(npts):
-        for j in range(2 * n):
-            Dc[p, j] *= w[p]
-    cumulative_T_cols(Dc, run, w_elem, n_elem, D, tot)  # D[p, j] = dXt_j, D[p, n + j] = dWt_j
-    for i in range(n):
-        for j in range(n):
-            J_out[i, j] = 0.0
-    for p in range(npts):
-        cp, sp = m_scale * c[p], m_scale * s[p]
-        for j in range(n):
-            dg = cp * D[p, n + j] - sp * D[p, j] + psi[j, p] * P3[p]
-            for i in range(n):
-                J_out[i, j] += psi[i, p] * dg
-
-
-@njit(cache=True, fastmath=True)
-def cumulative_cols(f, run, w_elem, n_elem, out, base):
-    """:func:`cumulative` of every column of f (N, m) at once (the column innermost); ``base`` (m,) scratch."""
-    g = run.shape[0]
-    m = f.shape[1]
-    for r in range(m):
-        base[r] = 0.0
-    for e in range(n_elem):
-        o = e * g
-        for i in range(g):
-            for r in range(m):
-                out[o + i, r] = base[r]
-            for k in range(g):
-                rik = run[i, k]
-                for r in range(m):
-                    out[o + i, r] += rik * f[o + k, r]
-        for k in range(g):
-            wk = w_elem[k]
-            for r in range(m):
-                base[r] += wk * f[o + k, r]
-
-
-@njit(cache=True, fastmath=True)
-def cumulative_T_cols(y, run, w_elem, n_elem, out, later):
-    """:func:`cumulative_T` of every column of y (N, m) at once; ``later`` (m,) scratch."""
-    g = run.shape[0]
-    m = y.shape[1]
-    for r in range(m):
-        later[r] = 0.0
-    for e in range(n_elem - 1, -1, -1):
-        o = e * g
-        for k in range(g):
-            wk = w_elem[k]
-            for r in range(m):
-                out[o + k, r] = wk * later[r]
-            for i in range(g):
-                rik = run[i, k]
-                for r in range(m):
-                    out[o + k, r] += rik * y[o + i, r]
-        for i in range(g):
-            for r in range(m):
-                later[r] += y[o + i, r]
+    D, E = jwork[0], jwork[1]  # rows j < n: d xi / dx_j, rows n + j: d eta / dx_j; E = S D (row by row)
+    for j in range(n):
+        for p in range(npts):
+            D[j, p] = psi[j, p] * P1[p]
+            D[n + j, p] = psi[j, p] * P2[p]
+    for j in range(2 * n):
+        for p in range(npts):
+            E[j, p] = 0.0
+        for k in range(npts):
+            d = D[j, k]
+            for p in range(npts):
+                E[j, p] += d * S[k, p]
+    for j in range(n):
+        for p in range(npts):  # d G_p / dx_j (into D's row j, no longer needed)
+            D[j, p] = m_scale * (c[p] * E[n + j, p] - s[p] * E[j, p]) + psi[j, p] * P3[p]
+        for i in range(n):
+            acc = 0.0
+            for p in range(npts):
+                acc += psi[i, p] * D[j, p]
+            J_out[i, j] = acc

@@ -138,7 +138,7 @@ class Stepper:
             self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
             m.Qg, m.Qgd, m.Gg,  # gust input
             # exact (elastica) structure
-            *((True, kin.psi, kin.quad.w, kin.quad.run, kin.quad.w_elem, kin.quad.n_elem, cfg.panel_length_m)
+            *((True, kin.psi, kin.quad.w, kin.quad.inertia_operator(), cfg.panel_length_m)
               if self.exact else ()))
         self._gust_proj = kernel.gust_projection(self.kernel_model)  # (r + 2n, km): what the kernel needs of w_g
         kernel.project_gust(np.zeros((1, self._gust_proj.shape[1])), self._gust_proj,
