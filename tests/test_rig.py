@@ -93,6 +93,20 @@ def test_actuator_lag_one_time_constant():
     assert act.airspeed_mps == pytest.approx(10.0 * (1 - math.exp(-1)), rel=0.005)
 
 
+def test_actuator_lag_arrives_at_its_set_point():
+    """The exact lag stalls ~200 ulp short of its set-point in floating point (the step's change rounds away); it
+    then snaps to it, so ``settled`` (the rig's fast path without per-step actuator calls) is reached."""
+    tau = 0.2
+    act = AirspeedActuator(DT, tau)
+    act.setpoint_mps = 10.0
+    steps = 0
+    while not act.settled and steps < round(40 * tau / DT):
+        act.step()
+        steps += 1
+    assert act.settled and act.airspeed_mps == 10.0
+    assert steps > round(25 * tau / DT)  # not before the lag itself is within round-off (e^-25 ~ 1e-11)
+
+
 def test_actuator_rate_limit_and_zero_tau():
     act = AirspeedActuator(DT, 0.0, max_rate_mps2=2.0)
     act.setpoint_mps = 10.0

@@ -39,6 +39,8 @@ class AirspeedActuator:
         if self.max_rate_mps2 > 0:
             dmax = self.max_rate_mps2 * self.dt_s
             target = min(max(target, self.airspeed_mps - dmax), self.airspeed_mps + dmax)
+        if target == self.airspeed_mps:  # the lag can no longer move in floating point (it stalls ~200 ulp short,
+            target = self.setpoint_mps  # ~4e-13 m/s at 10 m/s): it has arrived, and the rig skips its per-step calls
         self.airspeed_mps = max(0.0, target)
         return self.airspeed_mps
 
