@@ -1,9 +1,29 @@
-"""Child processes of the one-command sessions (demo, control demo, live flutter test): stopping them cleanly."""
+"""Stopping processes cleanly: the child processes of the one-command sessions (demo, control demo, live flutter
+test), and our own ROS programs (node, controller, operator) on SIGINT / SIGTERM."""
 
 from __future__ import annotations
 
 import signal
 import subprocess
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+
+@contextmanager
+def signals_set(stop: threading.Event) -> Iterator[None]:
+    """Within the block SIGINT and SIGTERM only set ``stop``: the spin loop turns it into a clean exit between
+    rclpy calls. (rclpy's own handler shuts the context down under whatever call is running, and Python's raises
+    KeyboardInterrupt wherever it lands: inside rclpy's conversion of a taken sample it left the subscription's
+    callback group busy for good.) The previous handlers come back on leaving the block."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in previous:
+        signal.signal(s, lambda *_: stop.set())
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def stop(proc: subprocess.Popen, timeout_s: float) -> int:

@@ -711,21 +711,20 @@ def test_operator_signal_only_requests_a_stop(ros_env: dict[str, str]) -> None:
     rclpy's conversion of a taken sample, which failed and left the subscription's callback group busy for good:
     the README's operate check then ended "no readings" with 1, about one run in 4-10); the next spin raises
     KeyboardInterrupt (exit 130), and the previous handlers come back."""
+    from panel_rig.processes import signals_set
     from panel_rig.ros import operator
 
     before = signal.getsignal(signal.SIGINT)
     rclpy.init(domain_id=int(ros_env["ROS_DOMAIN_ID"]))
     try:
         node = operator.Operator("/rig_signal_test", timeout_s=10.0)
-        previous = operator.stop_on_signals(node.stop_requested)
         try:
-            os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at this thread's next bytecode
-            assert node.stop_requested.wait(5.0)  # a flag: no KeyboardInterrupt here
-            with pytest.raises(KeyboardInterrupt):
-                node._spin(0.0)
+            with signals_set(node.stop_requested):
+                os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler at this thread's next bytecode
+                assert node.stop_requested.wait(5.0)  # a flag: no KeyboardInterrupt here
+                with pytest.raises(KeyboardInterrupt):
+                    node._spin(0.0)
         finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
             node.destroy_node()
     finally:
         rclpy.shutdown()

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 import threading
 from collections.abc import Sequence
@@ -33,6 +32,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
+from panel_rig.processes import signals_set
 from panel_rig.rig.control import ControlSettings
 
 NODE_NAME = "panel_rig_controller"
@@ -129,29 +129,25 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="physics parameters for the design (default: the paper's)")
     opts = parser.parse_args(remove_ros_args(["controller", *args])[1:])
     stop = threading.Event()
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     rclpy.init(args=["controller", *args], signal_handler_options=SignalHandlerOptions.NO)
-    for s in previous:
-        signal.signal(s, lambda *_: stop.set())
     node = None
     code = 0
-    try:
-        node = Controller(opts.params)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.05)
-        node.get_logger().info(f"stopping: {node.sent} commands sent, {node.clipped} clipped")
-    except Exception as exc:  # noqa: BLE001 (one line and exit 2, never a traceback wall)
-        print(f"panel-rig control: {type(exc).__name__}: {exc}", file=sys.stderr)
-        code = 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-        for s, h in previous.items():
-            signal.signal(s, h)
+    with signals_set(stop):
+        try:
+            node = Controller(opts.params)
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=0.05)
+            node.get_logger().info(f"stopping: {node.sent} commands sent, {node.clipped} clipped")
+        except Exception as exc:  # noqa: BLE001 (one line and exit 2, never a traceback wall)
+            print(f"panel-rig control: {type(exc).__name__}: {exc}", file=sys.stderr)
+            code = 2
+        finally:
+            if node is not None:
+                node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
     return code
 
 

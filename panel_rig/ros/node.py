@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import inspect
 import math
-import signal
 import sys
 import threading
 import time
@@ -37,6 +36,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
+from panel_rig.processes import signals_set
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
@@ -815,35 +815,27 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
         overrides.append(Parameter("fast", value=True))
 
     stop = threading.Event()
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-
-    def on_signal(signum: int, frame: object) -> None:
-        stop.set()
-
     rclpy.init(args=rcl_args, signal_handler_options=SignalHandlerOptions.NO)
-    for s in previous:
-        signal.signal(s, on_signal)
     node: RigNode | None = None
     code = 0
-    try:
-        node = RigNode(stepper_factory=stepper_factory, parameter_overrides=overrides)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin(node, executor, stop.is_set)
-        node.get_logger().info(f"stopping: {node.stats()}")
-    except StartupError as exc:
-        logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
-        logger.error(str(exc))
-        print(f"rig_node: {exc}", file=sys.stderr)
-        code = 2
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    with signals_set(stop):
+        try:
+            node = RigNode(stepper_factory=stepper_factory, parameter_overrides=overrides)
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            spin(node, executor, stop.is_set)
+            node.get_logger().info(f"stopping: {node.stats()}")
+        except StartupError as exc:
+            logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
+            logger.error(str(exc))
+            print(f"rig_node: {exc}", file=sys.stderr)
+            code = 2
+        finally:
+            if node is not None:
+                node.close()
+                node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
     return code
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 import threading
 import time
@@ -35,6 +34,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
+
+from panel_rig.processes import signals_set
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -325,14 +326,6 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
     return "\n".join(lines)
 
 
-def stop_on_signals(stop: threading.Event) -> dict[int, Any]:
-    """SIGINT and SIGTERM set ``stop`` (and raise nothing); returns the previous handlers, to restore."""
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s in previous:
-        signal.signal(s, lambda *_: stop.set())
-    return previous
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
     from rclpy.executors import ExternalShutdownException
@@ -355,22 +348,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     # down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (see Operator._spin)
     rclpy.init(args=["rig_operator", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = Operator(opts.namespace, opts.timeout)
-    previous = stop_on_signals(node.stop_requested)
     code = 0
-    try:
-        summary = node.play(steps)
-        print(format_summary(summary))
-    except RigUnavailable as exc:
-        print(f"rig_operator: {exc}", file=sys.stderr)
-        code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
-        code = 130
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    with signals_set(node.stop_requested):
+        try:
+            summary = node.play(steps)
+            print(format_summary(summary))
+        except RigUnavailable as exc:
+            print(f"rig_operator: {exc}", file=sys.stderr)
+            code = 1
+        except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
+            code = 130
+        finally:
+            node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
     return code
 
 
