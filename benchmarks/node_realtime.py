@@ -79,6 +79,13 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
     for _ in range(3):
         quiet.append(_run(True, fast_duration_s, SUBCRITICAL_MPS, turbulence=False)["realtime_factor"])
         windy.append(_run(True, fast_duration_s, SUBCRITICAL_MPS)["realtime_factor"])
+    # the same in the LCO (exact structure at airspeed_mps, above flutter): both panels move, so the difference is
+    # the turbulence's own work; below flutter the quiet panel comes to rest, and a step at rest converges in one
+    # Newton iteration where a moving panel's needs two or three (docs/validation.md, section 7)
+    quiet_lco, windy_lco = [], []
+    for _ in range(3):
+        quiet_lco.append(_run(True, fast_duration_s, airspeed_mps, variant="exact", turbulence=False)["realtime_factor"])
+        windy_lco.append(_run(True, fast_duration_s, airspeed_mps, variant="exact")["realtime_factor"])
     return {
         "airspeed_mps": airspeed_mps,
         "duration_s": duration_s,
@@ -95,6 +102,8 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
         "fast_exact_realtime_factor_recording": round(exact_rec["realtime_factor"], 2),
         "fast_quiet_tunnel_realtime_factor": round(max(quiet), 2),
         "fast_turbulence_cost_fraction": round(max(quiet) / max(windy) - 1.0, 3),
+        "fast_exact_lco_quiet_tunnel_realtime_factor": round(max(quiet_lco), 2),
+        "fast_exact_lco_turbulence_cost_fraction": round(max(quiet_lco) / max(windy_lco) - 1.0, 3),
     }
 
 
