@@ -29,11 +29,10 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.signals import SignalHandlerOptions
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
-from panel_rig.processes import signals_set
 from panel_rig.rig.control import ControlSettings
+from panel_rig.ros.session import ros_session
 
 NODE_NAME = "panel_rig_controller"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -129,10 +128,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="physics parameters for the design (default: the paper's)")
     opts = parser.parse_args(remove_ros_args(["controller", *args])[1:])
     stop = threading.Event()
-    rclpy.init(args=["controller", *args], signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
-    with signals_set(stop):
+    with ros_session(["controller", *args], stop):
         try:
             node = Controller(opts.params)
             executor = SingleThreadedExecutor()
@@ -146,8 +144,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         finally:
             if node is not None:
                 node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
     return code
 
 

@@ -28,7 +28,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import serialize_message
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -36,13 +35,13 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
-from panel_rig.processes import signals_set
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.params import CONTROL_FIELDS, LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
+from panel_rig.ros.session import ros_session
 
 NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -815,10 +814,9 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
         overrides.append(Parameter("fast", value=True))
 
     stop = threading.Event()
-    rclpy.init(args=rcl_args, signal_handler_options=SignalHandlerOptions.NO)
     node: RigNode | None = None
     code = 0
-    with signals_set(stop):
+    with ros_session(rcl_args, stop):
         try:
             node = RigNode(stepper_factory=stepper_factory, parameter_overrides=overrides)
             executor = SingleThreadedExecutor()
@@ -834,8 +832,6 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
             if node is not None:
                 node.close()
                 node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
     return code
 
 

@@ -35,7 +35,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from panel_rig.processes import signals_set
+from panel_rig.ros.session import ros_session
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -147,7 +147,7 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
 class Operator(Node):
     """The rig's operator console: command publishers, reading subscriptions, service clients."""
 
-    def __init__(self, namespace: str = "/rig", timeout_s: float = 10.0) -> None:
+    def __init__(self, namespace: str = "/rig", timeout_s: float = 10.0, stop: threading.Event | None = None) -> None:
         super().__init__("panel_rig_operator", namespace=namespace)
         self.timeout_s = timeout_s
         self.time_s = math.nan
@@ -160,7 +160,7 @@ class Operator(Node):
         self.diag_sim_time_s = -math.inf  # the rig's simulated time in its last diagnostics
         self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
         # set by main's SIGINT/SIGTERM handler; the profile stops at the next spin (see _spin)
-        self.stop_requested = threading.Event()
+        self.stop_requested = stop if stop is not None else threading.Event()
         self.pubs = {
             name: self.create_publisher(Float64, topic, COMMAND_QOS)
             for name, topic in (
@@ -342,14 +342,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ProfileError as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         return 2
-    from rclpy.signals import SignalHandlerOptions
-
     # SIGINT/SIGTERM set a flag that the spin loop turns into a clean stop (130): rclpy's handler shut the context
     # down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (see Operator._spin)
-    rclpy.init(args=["rig_operator", *args], signal_handler_options=SignalHandlerOptions.NO)
-    node = Operator(opts.namespace, opts.timeout)
+    stop = threading.Event()
     code = 0
-    with signals_set(node.stop_requested):
+    with ros_session(["rig_operator", *args], stop):
+        node = Operator(opts.namespace, opts.timeout, stop=stop)
         try:
             summary = node.play(steps)
             print(format_summary(summary))
@@ -360,8 +358,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             code = 130
         finally:
             node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
     return code
 
 
