@@ -304,34 +304,31 @@ class Stepper:
         G = self._gust(gust_upwash_mps, U.shape[0])
         wg_start = self.wg.copy()
         pg, P = self._projected(G)
+        pg_start = pg.copy()
         status, done, segs = kernel.march_sampled(
             self.q, self.qdot, self.xi, U, F, ends, self.kernel_model._replace(tip_bound=bound), tip,
             q_pre, v_pre, xi_pre, q_post, v_post, xi_post, pg, P)
         self._gust_done(G, done)
         self.steps += done
         self.time_s += done * self.dt_s
-        # gust before / after the last step of each sample (only if there is any)
-        gusty = bool(G.shape[1]) or bool(np.any(wg_start))
-        if G.shape[1]:
-            last_steps = ends[:segs] - 1
-            wg_post = G[last_steps]
-            wg_pre = G[np.maximum(last_steps - 1, 0)]
-            if segs and last_steps[0] == 0:
-                wg_pre[0] = wg_start
-        else:
-            wg_pre = wg_post = np.broadcast_to(wg_start, (segs, wg_start.shape[0]))
+        last_steps = ends[:segs] - 1
         if segs:
-            last = ends[segs - 1] - 1
+            last = last_steps[-1]
             self._last = (float(U[last]), q_pre[segs - 1].copy(), v_pre[segs - 1].copy(), xi_pre[segs - 1].copy(),
-                          wg_pre[segs - 1].copy(), wg_post[segs - 1].copy())
+                          G[last - 1].copy() if G.shape[1] and last else wg_start.copy(),
+                          G[last].copy() if G.shape[1] else wg_start.copy())
         # generalised aero force of each sample's last step (midpoint), as in aero_force_npm
-        Us = U[ends[:segs] - 1][:, None]
+        Us = U[last_steps][:, None]
         acc = (v_post[:segs] - v_pre[:segs]) / self.dt_s
         vm, qm = 0.5 * (v_post[:segs] + v_pre[:segs]), 0.5 * (q_post[:segs] + q_pre[:segs])
         xim = 0.5 * (xi_post[:segs] + xi_pre[:segs])
         aero = -acc @ m.Ma.T - Us * (vm @ m.Ca.T) - Us * Us * (qm @ m.Ka.T) + Us * (xim @ m.Qxi.T)
-        if gusty:
-            aero = aero + 0.5 * Us * ((wg_pre + wg_post) @ m.Qg.T) + (wg_post - wg_pre) @ m.Qgd.T / self.dt_s
+        if G.shape[1]:  # the gust's part from the projections [Gg; Qg; Qgd] w_g the kernel marched, before / after
+            pre, post = P[np.maximum(last_steps - 1, 0)], P[last_steps]
+            if segs and last_steps[0] == 0:
+                pre[0] = pg_start
+            r, n = self.xi.shape[0], self.n_modes
+            aero += 0.5 * Us * (pre[:, r:r + n] + post[:, r:r + n]) + (post[:, r + n:] - pre[:, r + n:]) / self.dt_s
         return SampledRun(status == kernel.OK, int(done), int(segs), tip[:done], q_post[:segs], v_post[:segs], aero)
 
 
