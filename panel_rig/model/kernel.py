@@ -50,7 +50,8 @@ class KernelModel(NamedTuple):
 
     Structure (Eqs. 19-22): ``M0`` = M + Ma (kg/m, modal), ``C`` structural damping (kg/(m s)), ``K`` structural
     stiffness (N/m^2 per unit modal coordinate), ``K_nl``/``P_nl`` the nonlinear stiffness and inertia tensors
-    scaled by ``k_scale`` (D/L) and ``m_scale`` (m_p L^3); ``use_k``/``use_m`` switch them (the variant);
+    scaled by ``k_scale`` (D/L) and ``m_scale`` (m_p L^3), ``T_nl`` the inertia force's tensor
+    (:func:`inertia_force_tensor`); ``use_k``/``use_m`` switch them (the variant);
     ``mass_mode`` where dM(q) is evaluated (MASS_*). Aero ROM (Eq. 25, convective form): ``Ca`` and ``Ka``
     (scaled by U and U^2 per step), ``Qxi``, ``Gv``, ``Gs`` and the block-diagonal aero eigenvalues
     (``blk_off``, ``blk_len``, ``lam_a``, ``lam_b``, scaled by U/dx per step). ``f_vec``: generalised force per
@@ -75,6 +76,7 @@ class KernelModel(NamedTuple):
     lam_b: np.ndarray
     K_nl: np.ndarray
     P_nl: np.ndarray
+    T_nl: np.ndarray  # inertia_force_tensor(P_nl)
     k_scale: float
     m_scale: float
     use_k: bool
@@ -103,7 +105,7 @@ class KernelModel(NamedTuple):
 @njit(cache=True)
 def inertia_force_tensor(P_nl):
     """T_iacd = P_aicd + P_ciad - (P_iacd + P_caid) / 2, the nonlinear inertia force of Eq. (22) as one tensor:
-    F_M,i = m sum_acd T_iacd v_a q_c v_d (formed once per march: one gather per term instead of three)."""
+    F_M,i = m sum_acd T_iacd v_a q_c v_d (formed once per model: one gather per term instead of three)."""
     n = P_nl.shape[0]
     T = np.zeros((n, n, n, n))
     for i in range(n):
@@ -255,7 +257,7 @@ def _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, 
     K_nl, P_nl, k_scale, m_scale, use_k, use_m = km.K_nl, km.P_nl, km.k_scale, km.m_scale, km.use_k, km.use_m
     mass_mode, f_vec, tip_vec, tip_bound, tol = km.mass_mode, km.f_vec, km.tip_vec, km.tip_bound, km.tol
     exact, ex_psi, ex_w, ex_S = km.exact, km.ex_psi, km.ex_w, km.ex_S
-    T_nl = inertia_force_tensor(P_nl)
+    T_nl = km.T_nl
     est_tol = tol * (1.0 if exact else EST_CHORD)
     ex_work = np.zeros((FORCE_WORK_ROWS, ex_psi.shape[1]))
     ex_jwork = np.zeros((2, 2 * q.shape[0], ex_psi.shape[1]))

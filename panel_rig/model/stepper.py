@@ -133,7 +133,8 @@ class Stepper:
         self._kin = kin
         self.kernel_model = kernel.KernelModel(
             self.dt_s, m.dx_m, m.M0, m.C, m.Ca, m.K, m.Ka, m.Qxi, m.Gv, m.Gs, m.blk_off, m.blk_len, m.lam_a, m.lam_b,
-            s.K_nl, s.P_nl, s.stiffness_scale_n, s.modal_mass_kg, use_k, use_m, MASS_MODES[scheme],
+            s.K_nl, s.P_nl, kernel.inertia_force_tensor(s.P_nl), s.stiffness_scale_n, s.modal_mass_kg, use_k, use_m,
+            MASS_MODES[scheme],
             cfg.panel_length_m * self._tip_vec,  # generalised force per N/m at the trailing edge
             self._tip_vec, cfg.max_tip_w_over_L, NEWTON_TOL,
             m.Qg, m.Qgd, m.Gg,  # gust input
