@@ -89,7 +89,7 @@ def measure(duration_s: float = 60.0, airspeed_mps: float = 11.0, fast_duration_
         windy.append(_run(True, fast_duration_s, SUBCRITICAL_MPS)["cpu_realtime_factor"])
     # the same in the LCO (exact structure at airspeed_mps, above flutter): both panels move, so the difference is
     # the turbulence's own work; below flutter the quiet panel comes to rest, and a step at rest converges in one
-    # Newton iteration where a moving panel's needs two or three (docs/validation.md, section 7)
+    # Newton iteration where a moving panel's needs two (docs/validation.md, section 7)
     quiet_lco, windy_lco = [], []
     for _ in range(5):
         quiet_lco.append(_run(True, fast_duration_s, airspeed_mps, variant="exact", turbulence=False)[

@@ -40,7 +40,7 @@ EX_KEEP, EX_WAIT = 1e-3, 64  # a step first tries the last step's matrix; if an 
 # (small motion: the matrix hardly changes and is kept; in a large LCO it changes by 1-5 % a step)
 # the estimated-error stop (below) of the cubic structure's chord Newton: its ratio from two updates is less steady
 # than the exact structure's (Newton matrix exact at the first iteration); at EST_CHORD = 1 a step of a growing LCO
-# was up to 8 tolerances off the converged solution (300 states), at 0.1 within one
+# was up to 8 tolerances off the converged solution (300 states), at 0.1 within 0.24
 EST_CHORD = 0.1
 EX_PRED = 3  # the Newton predictor extrapolates the last EX_PRED step accelerations (degree EX_PRED - 1)
 
@@ -418,7 +418,7 @@ def _march(q, v, xi, U_seq, F_seq, km, tip_out, pg, Pg_seq, ends, q_pre, v_pre, 
             if big <= tol * scale:
                 break
             # linear convergence with ratio r = big / big_prev leaves an error of about big r / (1 - r) after this
-            # update; stop when that is below the tolerance (saves the confirming evaluation: a moving panel's step
+            # update; stop when that is below est_tol (saves the confirming evaluation: a moving panel's step
             # is two iterations, not three; the chord matrix leaves out only the small cubic forces' derivatives)
             if it > 0 and big < 0.5 * big_prev and big * big <= est_tol * scale * (big_prev - big):
                 break
