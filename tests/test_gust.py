@@ -155,6 +155,21 @@ def test_gust_cli_json_and_bad_input(capsys):
         assert err.count("\n") == 0 and err, bad
 
 
+def test_gust_cli_table_gives_the_errors_against_sears(capsys):
+    """The text table adds |L| error (per cent of Sears) and phase error (deg), computed from the same points as
+    the JSON, and names the running sum of Eq. (4) in use."""
+    assert main(["gust", "--k", "0.3", "1", "--json"]) == 0
+    points = json.loads(capsys.readouterr().out)["points"]
+    assert main(["gust", "--k", "0.3", "1"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert "'inclusive'" in lines[0] and "first order" in lines[0]
+    for p, line in zip(points, lines[2:], strict=True):
+        cells = line.replace("%", " ").split()
+        assert float(cells[5]) == pytest.approx(100 * (p["lift_magnitude"] / p["sears_magnitude"] - 1), abs=0.006)
+        assert float(cells[6]) == pytest.approx(p["lift_phase_deg"] - p["sears_phase_deg"], abs=0.006)
+    assert float(lines[-1].replace("%", " ").split()[5]) > 1.0  # k = 1: the first-order sum's 1.37 % (section 6)
+
+
 def test_sears_reference_limits():
     """The reference itself: S(0) = 1 and |S(k)| -> 1 / sqrt(2 pi k) for large k."""
     assert abs(sears(1e-6)) == pytest.approx(1.0, abs=1e-4)
