@@ -322,16 +322,14 @@ def cmd_gust(args: argparse.Namespace) -> int:
     return 0
 
 
-_RUNNING_SUM_NOTE = {"inclusive": "as printed, element j's whole vortex, first order in dx",
-                     "midpoint": "half of element j's vortex, second order",
-                     "vortex": "3/4 of element j's vortex, the point vortices' exact integral"}
-
-
 def _gust_table(points: list[dict], elements: int, wake_chords: float, running_sum: str) -> str:
     """The Sears comparison as text, with the errors of |L| (per cent of Sears) and of the phase (deg)."""
-    head = (f"rigid lattice: {elements} elements, {wake_chords:g}-chord wake; Eq. 4's running sum "
-            f"'{running_sum}': {_RUNNING_SUM_NOTE.get(running_sum, '')} (aero.running_sum; docs/validation.md, "
-            "section 6)\n"
+    from panel_rig.model.aerodynamics import RUNNING_SUM_OWN
+
+    own = RUNNING_SUM_OWN[running_sum]
+    order = "as printed: first order in dx" if own == 1.0 else "not the paper's"
+    head = (f"rigid lattice: {elements} elements, {wake_chords:g}-chord wake; Eq. 4's running sum '{running_sum}' "
+            f"(element j's own vortex x {own:g}, {order}; aero.running_sum, docs/validation.md section 6)\n"
             "     k   |L|/(2 pi rho U b w0)   phase (deg)   Sears |S|   Sears phase (deg)   |L| error   phase error (deg)")
     rows = [f"{p['k']:6.3f}  {p['lift_magnitude']:21.4f}  {p['lift_phase_deg']:12.2f}  {p['sears_magnitude']:10.4f}"
             f"  {p['sears_phase_deg']:18.2f}  {100 * (p['lift_magnitude'] / p['sears_magnitude'] - 1):+9.2f} %"
