@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from typing import Any, Callable, Sequence
 
@@ -787,10 +788,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# the exit status of a command whose reader went away (128 + SIGPIPE), as a shell reports `yes | head -1`'s yes
+BROKEN_PIPE_STATUS = 141
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in PROGRAMS:
-        return PROGRAMS[argv[0]][0](argv[1:])
+    try:
+        if argv and argv[0] in PROGRAMS:
+            return PROGRAMS[argv[0]][0](argv[1:])
+        return _run_subcommand(argv)
+    except BrokenPipeError:  # `panel-rig ... | head -1`: the reader closed the pipe; end quietly, not a traceback
+        _silence_stdout()
+        return BROKEN_PIPE_STATUS
+
+
+def _run_subcommand(argv: Sequence[str]) -> int:
     try:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)
@@ -800,6 +813,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("panel-rig: interrupted", file=sys.stderr)
         return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at the null device, so the interpreter's flush at exit does not raise a second broken pipe."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 if __name__ == "__main__":

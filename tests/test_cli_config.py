@@ -1,6 +1,7 @@
 """The panel-rig CLI and the parameter file: figures as JSON, bad input as exit 2 with one line."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -56,6 +57,20 @@ def test_bad_input_exits_2_with_one_line(args, needle):
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], out.stderr
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize("args", [["modes"], ["modes", "--json"]])
+def test_closed_reader_ends_quietly_with_sigpipe_status(args):
+    """`panel-rig modes | head -0`: stdout's reader is gone before the first write; the command ends with 141
+    (128 + SIGPIPE, as a shell reports it) and nothing on stderr (it printed a BrokenPipeError traceback)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # every write to write_end now fails with EPIPE, whatever the timing
+    try:
+        out = subprocess.run([*CLI, *args], stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert out.returncode == 141
+    assert out.stderr == ""
 
 
 def test_malformed_yaml(tmp_path):
