@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import random
 import signal
 import subprocess
 import sys
@@ -277,16 +275,13 @@ class _Client:
 
 
 @pytest.fixture(scope="module")
-def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+def node_run(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """Node in fast mode (stiffness variant, recording + live Rerun): 11.3 m/s, a tap, 30 s, SIGINT."""
     tmp = tmp_path_factory.mktemp("node_run")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(201, 230)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_LOG_DIR=str(tmp / "log"))
+    env = ros_env
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
            "-p", "model.variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
            "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}"]
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
-    os.environ.update({k: env[k] for k in saved})
     client = _Client(int(env["ROS_DOMAIN_ID"]))
     t_wall = time.monotonic()
     with open(tmp / "node.log", "w") as log:
@@ -310,11 +305,6 @@ def node_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
             proc.kill()
             proc.wait()
         client.close()
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     bags = list((tmp / "bags").iterdir())
     assert len(bags) == 1
     print(f"\nnode run: {time.monotonic() - t_wall:.1f} s wall; tap {t_on:.2f}-{t_off:.2f} s simulated")

@@ -12,13 +12,11 @@ abort acts. No NaN anywhere, and the node exits cleanly.
 from __future__ import annotations
 
 import math
-import os
-import random
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -92,21 +90,6 @@ class Client:
         rclpy.shutdown(context=self.context)
 
 
-@pytest.fixture(scope="module")
-def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
-    log_dir = tmp_path_factory.mktemp("ros_log")
-    e = {"ROS_DOMAIN_ID": str(random.randint(100, 200)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-         "ROS_LOG_DIR": str(log_dir)}
-    saved = {k: os.environ.get(k) for k in e}
-    os.environ.update(e)
-    yield dict(os.environ)
-    for k, v in saved.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
-
-
 def _stop(proc: subprocess.Popen, sig: int = signal.SIGINT) -> str:
     if proc.poll() is None:
         proc.send_signal(sig)
@@ -118,22 +101,22 @@ def _stop(proc: subprocess.Popen, sig: int = signal.SIGINT) -> str:
     return out or ""
 
 
-def test_closed_loop_over_topics(env: dict[str, str], model: Any, tmp_path: Path) -> None:
+def test_closed_loop_over_topics(ros_env: dict[str, str], model: Any, tmp_path: Path) -> None:
     from panel_rig.analysis.control import design_law
 
     design = design_law(model)
     u_f = design.open_loop_flutter_mps
-    client = Client(int(env["ROS_DOMAIN_ID"]))
+    client = Client(int(ros_env["ROS_DOMAIN_ID"]))
     node = subprocess.Popen(
         [PYTHON, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
          "-p", "fast_max_realtime_factor:=5.0", "-p", f"control.fast_delay_s:={FAST_DELAY_S}",
          "-p", "model.variant:=full", "-p", "tunnel.time_constant_s:=0.3", "-p", "diagnostics_rate_hz:=5.0",
          "-p", f"safety.max_tip_w_over_L:={TIP_LIMIT}", "-p", f"control.timeout_s:={TIMEOUT_S}"],
-        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctl = subprocess.Popen(
         [PYTHON, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
          "-p", f"gain_nspm2:={design.law.gain_nspm2}", "-p", f"derivative_hz:={design.law.derivative_hz}"],
-        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     node_out = ctl_out = ""
     try:
         client.wait(lambda: client.diag().get("control_state") == "active", 60.0, "the controller's commands")
@@ -222,25 +205,25 @@ def _between(text: str) -> tuple[str, str]:
     return m.group(1), m.group(2)
 
 
-def test_controller_bad_parameters_exit_code_2(env: dict[str, str]) -> None:
+def test_controller_bad_parameters_exit_code_2(ros_env: dict[str, str]) -> None:
     proc = subprocess.run([PYTHON, "-m", "panel_rig.ros.controller", "--params", "/nonexistent.yaml",
-                           "--ros-args", "-r", "__ns:=/rig"], env=env, cwd=ROOT, capture_output=True, text=True,
+                           "--ros-args", "-r", "__ns:=/rig"], env=ros_env, cwd=ROOT, capture_output=True, text=True,
                           timeout=60, check=False)
     assert proc.returncode == 2 and "nonexistent" in proc.stderr
 
 
 
-def test_real_time_ages_on_the_ros_clock_and_watchdog(env: dict[str, str]) -> None:
+def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -> None:
     """Real time: commands echo ROS-clock stamps, the node measures their ages on the ROS clock (reported, not
     asserted against a target: the machine's load decides them; benchmarks/control_latency.py measures them), and
     killing the controller trips the watchdog. The tunnel is off: this checks the plumbing, not the suppression."""
-    client = Client(int(env["ROS_DOMAIN_ID"]))
+    client = Client(int(ros_env["ROS_DOMAIN_ID"]))
     node = subprocess.Popen(
         [PYTHON, "-m", "panel_rig.ros.node", "--ros-args", "-r", "__ns:=/rig", "-p", "diagnostics_rate_hz:=5.0",
-         "-p", f"control.timeout_s:={TIMEOUT_S}"], env=env, cwd=ROOT, stdout=subprocess.PIPE,
+         "-p", f"control.timeout_s:={TIMEOUT_S}"], env=ros_env, cwd=ROOT, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True)
     ctl = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
-                            "-p", "gain_nspm2:=0.4"], env=env, cwd=ROOT, stdout=subprocess.PIPE,
+                            "-p", "gain_nspm2:=0.4"], env=ros_env, cwd=ROOT, stdout=subprocess.PIPE,
                            stderr=subprocess.STDOUT, text=True)
     node_out = ""
     try:

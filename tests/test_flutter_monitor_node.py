@@ -6,8 +6,6 @@ each published point until the next, so every plateau starts at the same simulat
 turbulence whatever the machine's speed (without it the commands landed at wall-clock-dependent instants and a
 realisation now and then gave no prediction from three short plateaus)."""
 
-import os
-import random
 import signal
 import subprocess
 import sys
@@ -20,23 +18,20 @@ ROOT = Path(__file__).resolve().parents[1]
 SETTLE_S, DWELL_S = 5.0, 25.0  # simulated: run-in dropped, then the identified window; ~5 s wall a plateau
 
 
-def test_node_publishes_one_monitor_message_per_plateau(tmp_path, monkeypatch):
+def test_node_publishes_one_monitor_message_per_plateau(tmp_path, ros_env):
     rclpy = pytest.importorskip("rclpy")
     from diagnostic_msgs.msg import DiagnosticArray
 
     from panel_rig.ros.flutter_monitor import parse_monitor
     from panel_rig.ros.operator import Operator
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_LOG_DIR=str(tmp_path))
+    env = ros_env  # this process is on the same private graph: the operator discovers the node
     cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params", str(ROOT / "config/tang_dowell_2002.yaml"),
            "--ros-args", "-r", "__ns:=/rig", "--params-file", str(ROOT / "config/rig.yaml"), "-p", "fast:=true",
            "-p", "flutter_monitor:=true", "-p", "model.variant:=full", "-p", "flutter_test.hold:=true",
            "-p", f"flutter_test.settle_s:={SETTLE_S}", "-p", f"flutter_test.dwell_s:={DWELL_S}"]
     with open(tmp_path / "node.log", "w") as log:
         node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):  # discover the node as it discovers us
-        monkeypatch.setenv(key, env[key])
     started_here = not rclpy.ok()
     if started_here:
         rclpy.init(domain_id=int(env["ROS_DOMAIN_ID"]))

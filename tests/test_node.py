@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -106,23 +105,10 @@ def shm_left_behind(own: set[str], before: set[str]) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
-    """A private domain, localhost discovery, logs in tmp; applied to this process and the node's."""
-    log_dir = tmp_path_factory.mktemp("ros_log")
-    PARAMS_FILE[:] = [params_any_namespace(log_dir)]
-    env = {
-        "ROS_DOMAIN_ID": str(random.randint(100, 200)),
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-        "ROS_LOG_DIR": str(log_dir),
-    }
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    yield dict(os.environ)
-    for k, v in saved.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
+def ros_env(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """conftest's private graph, with this module's parameters file written for node_cmd."""
+    PARAMS_FILE[:] = [params_any_namespace(tmp_path_factory.mktemp("params"))]
+    return ros_env
 
 
 class Client:

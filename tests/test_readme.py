@@ -7,8 +7,6 @@ the reason. A command the README gains that this file does not classify fails th
 
 from __future__ import annotations
 
-import os
-import random
 import re
 import shlex
 import shutil
@@ -79,9 +77,8 @@ def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def env(scratch: Path) -> dict[str, str]:
-    return dict(os.environ, ROS_DOMAIN_ID=str(random.randint(150, 199)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                ROS_LOG_DIR=str(scratch / "ros_log"), MPLBACKEND="Agg")
+def env(ros_env: dict[str, str], scratch: Path) -> dict[str, str]:
+    return dict(ros_env, ROS_LOG_DIR=str(scratch / "ros_log"), MPLBACKEND="Agg")
 
 
 def test_readme_has_the_commands_we_expect() -> None:
