@@ -222,21 +222,17 @@ def test_shape_of_a_sample_q_is_the_shape_of_that_state(variant: str) -> None:
     assert not np.array_equal(st.shape_w_over_L(x), own)
 
 
-def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: Path) -> None:
+def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: Path, ros_env: dict[str, str]) -> None:
     """In-process fast node, recording, no subscribers (64-period blocks): the bag holds every reading once, in
     order, and a panel_shape every 1/30 s whose trailing-edge z is the truth reading at its stamp."""
-    import os
-    import random
-
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode, spin
 
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=random.randint(201, 230))
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
     node = RigNode(context=ctx, parameter_overrides=[
         Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
         Parameter("bag_dir", value=str(tmp_path)), Parameter("tunnel.time_constant_s", value=0.2)])
