@@ -73,8 +73,20 @@ class Client:
                 raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.02)
 
-    def diag(self) -> dict[str, str]:
-        return {kv.key: kv.value for kv in self.got["diag"][-1].status[0].values} if self.got["diag"] else {}
+    def diag(self, k: int = -1) -> dict[str, str]:
+        """The node's k-th /diagnostics message (default the last) as key -> value; {} before the first."""
+        return {kv.key: kv.value for kv in self.got["diag"][k].status[0].values} if self.got["diag"] else {}
+
+    def lockstep_window(self, engaged_s: float) -> dict[str, str] | None:
+        """The first diagnostics message whose command window opened after the node marched past ``engaged_s``
+        (simulated s, when the lock-step was on): by then every command answering a reading the node published
+        before it engaged had arrived (the node marches on only when the reading it waits for is answered, and the
+        controller answers in order). Such a window holds lock-step answers only; None while there is none."""
+        for k in range(len(self.got["diag"]) - 1):
+            prev, d = self.diag(k), self.diag(k + 1)
+            if float(prev["sim_time_s"]) > engaged_s and int(d["control_latency_n"]) > 0:
+                return d
+        return None
 
     def publish(self, topic: str, value: float) -> None:
         self.wait(lambda: self.pubs[topic].get_subscription_count() > 0, 10.0, f"a subscriber on {topic}")
@@ -120,9 +132,13 @@ def test_closed_loop_over_topics(ros_env: dict[str, str], model: Any, tmp_path: 
     node_out = ctl_out = ""
     try:
         client.wait(lambda: client.diag().get("control_state") == "active", 60.0, "the controller's commands")
-        client.wait(lambda: int(client.diag()["control_commands"]) > 200 and int(client.diag()["control_latency_n"]) > 0
-                    and client.diag()["control_lockstep"] == "True", 20.0, "command ages measured in lock-step")
-        d = client.diag()
+        client.wait(lambda: int(client.diag()["control_commands"]) > 200 and client.diag()["control_lockstep"] == "True",
+                    20.0, "the lock-step")
+        # the window of that message may still hold the first commands, which answered readings of the node's last
+        # free-running 64-period blocks (older than the emulated delay): the ages are measured in a later window
+        engaged_s = float(client.diag()["sim_time_s"])
+        client.wait(lambda: client.lockstep_window(engaged_s) is not None, 20.0, "a window wholly in lock-step")
+        d = client.lockstep_window(engaged_s)
         assert float(d["control_latency_mean_ms"]) == pytest.approx(1e3 * FAST_DELAY_S, abs=1e-3), d
         assert float(d["control_latency_p99_ms"]) == pytest.approx(1e3 * FAST_DELAY_S, abs=1e-3), d
         # every command echoes the stamp of a tip reading: wait until this client has taken the readings the last
