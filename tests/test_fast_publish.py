@@ -1,4 +1,4 @@
-"""The node's block serialisation: numpy-built CDR and MCAP records equal the per-message path they replace."""
+"""The fast node's blocks: numpy-built CDR and MCAP records equal the per-message path they replace; its pacing."""
 
 from __future__ import annotations
 
@@ -274,3 +274,43 @@ def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: 
         assert z_tip == pytest.approx(truth[stamp].point.z, rel=1e-9, abs=1e-12)
         moving += abs(z_tip) > 1e-6
     assert moving > len(shapes) // 2
+
+
+def test_fast_node_holds_its_realtime_factor_cap(ros_env: dict[str, str]) -> None:
+    """In-process fast node, no subscribers (64-period blocks, 0.128 s simulated each): with
+    fast_max_realtime_factor 4 it marches at 4x the wall clock (it used to wait only one executor pass, 5 ms, per
+    block: ~18x whatever the cap below that), and set to 0 live it runs uncapped."""
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode, spin
+
+    cap = 4.0
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("model.variant", value="full"),
+        Parameter("fast_max_realtime_factor", value=cap)])
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        node.rig.command_airspeed(8.0)
+        spin(node, executor, lambda: node.rig.time_s > 0.3)  # warm: kernels loaded, pace anchored
+        wall0, sim0 = time.monotonic(), node.rig.time_s
+        spin(node, executor, lambda: node.rig.time_s > sim0 + 3.0)
+        capped = (node.rig.time_s - sim0) / (time.monotonic() - wall0)
+        assert node.set_parameters([Parameter("fast_max_realtime_factor", value=0.0)])[0].successful
+        wall0, sim0 = time.monotonic(), node.rig.time_s
+        spin(node, executor, lambda: node.rig.time_s > sim0 + 3.0)
+        uncapped = (node.rig.time_s - sim0) / (time.monotonic() - wall0)
+        executor.shutdown()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    # at most the cap (one block, 0.128 s, may run ahead of it: 4 % of 3 s); at least half of it on a loaded machine
+    assert 0.5 * cap < capped <= 1.05 * cap
+    assert uncapped > 2 * cap

@@ -737,9 +737,11 @@ class RigNode(Node):
 def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
     """Run the node until ``should_stop()``: timers in real-time mode; in fast mode a stepping loop that
     serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time, or less
-    often when a pass costs more than ``FAST_SPIN_SHARE`` of that (at least every ``FAST_SPIN_MAX_PERIOD_S``)."""
+    often when a pass costs more than ``FAST_SPIN_SHARE`` of that (at least every ``FAST_SPIN_MAX_PERIOD_S``).
+    With ``fast_max_realtime_factor`` > 0 it marches the next block only once the wall clock has caught up with
+    the simulated time at that factor, serving callbacks while it waits."""
     next_spin = 0.0
-    pace_wall, pace_sim = time.monotonic(), node.rig.time_s
+    pace = _Pace(node.rig.time_s)
     while not should_stop() and rclpy.ok(context=node.context):
         node.apply_pending()
         if not node.fast:
@@ -747,25 +749,45 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
             continue
         if node.flutter_holding():  # a flutter-test client is deciding the next point: serve callbacks only
             executor.spin_once(timeout_sec=FAST_SPIN_PERIOD_S)
-            pace_wall, pace_sim = time.monotonic(), node.rig.time_s
+            pace.anchor(node.rig.time_s)
+            continue
+        ahead_s = pace.ahead_s(node.rig.time_s, node.fast_max_rtf)
+        if ahead_s > 0:  # ahead of the capped clock: wait, serving callbacks, before marching on
+            executor.spin_once(timeout_sec=min(ahead_s, FAST_SPIN_PERIOD_S))
+            next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
             continue
         node.fast_iteration()
         node.lockstep_wait(executor)
         now = time.monotonic()
-        ahead_s = 0.0
-        if node.fast_max_rtf > 0:  # optional cap: wait (serving callbacks) while ahead of the paced clock
-            ahead_s = pace_wall + (node.rig.time_s - pace_sim) / node.fast_max_rtf - now
-            if ahead_s < -0.1:  # fell behind the cap: re-anchor rather than burst
-                pace_wall, pace_sim, ahead_s = now, node.rig.time_s, 0.0
-        else:
-            pace_wall, pace_sim = now, node.rig.time_s
-        if ahead_s > 0:
-            executor.spin_once(timeout_sec=min(ahead_s, FAST_SPIN_PERIOD_S))
-            next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
-        elif now >= next_spin:
+        if now >= next_spin:
             executor.spin_once(timeout_sec=0.0)
             cost = time.monotonic() - now  # rclpy rebuilds the wait set each pass: keep its share of the wall bounded
             next_spin = now + min(max(FAST_SPIN_PERIOD_S, cost / FAST_SPIN_SHARE), FAST_SPIN_MAX_PERIOD_S)
+
+
+class _Pace:
+    """The fast mode's optional real-time-factor cap: a wall-clock anchor and the simulated time at it."""
+
+    def __init__(self, sim_s: float):
+        self.anchor(sim_s)
+        self._factor = 0.0
+
+    def anchor(self, sim_s: float) -> None:
+        self._wall_s, self._sim_s = time.monotonic(), sim_s
+
+    def ahead_s(self, sim_s: float, factor: float) -> float:
+        """Wall seconds the simulation at ``sim_s`` is ahead of the anchor's clock at ``factor`` (0: no cap).
+        Re-anchors when uncapped, when the factor changed, and when it fell more than 0.1 s behind (a slow
+        stretch is not made up in a burst)."""
+        if factor <= 0 or factor != self._factor:
+            self._factor = factor
+            self.anchor(sim_s)
+            return 0.0
+        ahead_s = self._wall_s + (sim_s - self._sim_s) / factor - time.monotonic()
+        if ahead_s < -0.1:
+            self.anchor(sim_s)
+            return 0.0
+        return ahead_s
 
 
 def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
