@@ -477,7 +477,8 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
-        "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")), **core,
+        "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
+        "refused_commands": rec.refused_commands, **core,
     }
     result["flutter_test"] = replay_flutter_test(rec)
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
@@ -516,7 +517,7 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
     window = {k: float(rec.parameters[f"flutter_test.{k}"]) for k in ("settle_s", "dwell_s")
               if monitored and isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
-                           rec.panel_length_m, force, **window)
+                           rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
@@ -561,7 +562,12 @@ def format_table(result: dict[str, Any]) -> str:
     head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
             f"{'rate_1/s':>8} status")
     lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
-             f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})", head]
+             f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})"]
+    refused = result.get("refused_commands") or {}
+    if refused:
+        lines.append("commands the rig refused (left out): "
+                     + ", ".join(f"{topic} {count}" for topic, count in sorted(refused.items())))
+    lines.append(head)
     for p in result["plateaus"]:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "

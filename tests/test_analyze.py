@@ -229,6 +229,7 @@ COMMAND_MARGIN_S = 3.0  # simulated: the command latency of a fast node, at most
 TAP_NPM = 0.05  # held trailing-edge force released after TAP_HOLD_S: the disturbance that starts the LCO
 TAP_HOLD_S = 1.0
 NODE_TAU_S = 0.2
+REFUSED_AIRSPEED_MPS = 500.0  # beyond safety.max_airspeed_mps
 
 
 class _Client:
@@ -294,6 +295,11 @@ def node_run(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) 
         client.wait(lambda: client.time_s >= t_on + TAP_HOLD_S, 30.0, "the tap", proc)
         client.publish("shaker/force_cmd", 0.0)
         t_off = client.time_s
+        # mid-run, two commands the rig refuses: recorded on <topic>/rejected, they neither end the plateau nor
+        # move its free response (the analysis sees the commands that acted)
+        client.wait(lambda: client.time_s >= t_off + RUN_S / 2, 60.0, "mid-run", proc)
+        client.publish("airspeed_cmd", REFUSED_AIRSPEED_MPS)
+        client.publish("shaker/force_cmd", math.nan)
         # the node takes the command a little later in its own time than this client's t_off (fast mode: a few ms of
         # wall time are ~1 s simulated at 80x): RUN_S plus a margin, so the bag's free response is >= RUN_S long
         client.wait(lambda: client.time_s >= t_off + RUN_S + COMMAND_MARGIN_S, 120.0, f"{RUN_S} s of simulated time",
@@ -328,6 +334,7 @@ def test_node_bag_reads_identically_in_three_readers(node_run: dict[str, object]
                   "/rig/airspeed_cmd", "/rig/shaker/force_cmd", "/diagnostics"):
         assert ours[topic] > 0, topic
     assert ours["/rig/shaker/force_cmd"] == 2 and ours["/rig/airspeed_cmd"] == 1
+    assert ours["/rig/shaker/force_cmd/rejected"] == 1 and ours["/rig/airspeed_cmd/rejected"] == 1
     out = node_run["tmp"] / "bag.rrd"
     proc = subprocess.run([str(Path(sys.executable).with_name("rerun")), "mcap", "convert", str(mcap), "-o", str(out)],
                           capture_output=True, text=True, timeout=120)
@@ -367,6 +374,7 @@ def test_node_bag_analysis_matches_lco(node_run: dict[str, object], cfg: object)
 
     res = analyze_bag(node_run["bag"])
     assert res["panel_length_source"] == "parameters" and res["variant"] == "stiffness"
+    assert res["refused_commands"] == {"/rig/airspeed_cmd": 1, "/rig/shaker/force_cmd": 1}
     lco_plateaus = [p for p in res["plateaus"] if abs(p["airspeed_mps"] - U_LCO_MPS) < 0.05]
     assert len(lco_plateaus) == 1
     p = lco_plateaus[0]
@@ -433,6 +441,20 @@ def test_onset_ignores_plateaus_after_the_first_lco() -> None:
     onset = estimate_onset(plateaus)
     assert onset["bracket_low_mps"] == 10.0 and onset["bracket_high_mps"] == 10.8
     assert onset["extrapolated_mps"] is None and onset["extrapolation_points"] == []
+
+
+def test_onset_interpolates_only_from_a_measured_decay() -> None:
+    """The rate of a quiet plateau (a response that never rose, e.g. the tunnel off) is noise: no interpolation
+    from it (it gave 0.05 m/s for a bracket 0 .. 11 m/s); from a decaying one, the straight line."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+
+    def p(u, status, t0, rate):
+        return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}
+
+    quiet = estimate_onset([p(0.0, "quiet", 0, -0.001), p(11.0, "growing", 10, 0.3)])
+    assert quiet["bracket_low_mps"] == 0.0 and quiet["interpolated_mps"] is None
+    decaying = estimate_onset([p(10.0, "decaying", 0, -0.1), p(11.0, "growing", 10, 0.3)])
+    assert decaying["interpolated_mps"] == pytest.approx(10.25)
 
 
 def test_random_response_in_turbulence_is_not_growth() -> None:

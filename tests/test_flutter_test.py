@@ -77,6 +77,31 @@ def test_procedure_on_the_rig_stops_short_and_predicts_the_flutter_speed(paper_r
     assert d["fluttered"] is False and d["test_points"][0]["damping_ci"][0] < d["test_points"][0]["damping_ratio"]
 
 
+def test_replay_skips_a_window_where_the_tunnel_did_not_run_at_the_command():
+    """A recorded set-point the tunnel did not follow (a command refused, an aborted rig) is no test point: the
+    measured airspeed decides. Synthetic: a 2 %-damped 20 Hz mode driven by noise, commands at 8, 50 (refused:
+    the tunnel stays at 8) and 9 m/s."""
+    from panel_rig.analysis.flutter_test import replay_points
+
+    dt, n = 1.0 / 500.0, 500 * 90
+    t = np.arange(n) * dt
+    rng = np.random.default_rng(0)
+    omega, zeta = 2 * np.pi * 20.0, 0.02
+    a1, a2 = 2 * np.exp(-zeta * omega * dt) * np.cos(omega * dt), -np.exp(-2 * zeta * omega * dt)
+    y = np.zeros(n)
+    e = rng.normal(size=n)
+    for k in range(2, n):
+        y[k] = a1 * y[k - 1] + a2 * y[k - 2] + e[k]
+    y *= 1e-5 / np.std(y)
+    cmds = [(0.0, 8.0), (30.0, 50.0), (60.0, 9.0)]
+    measured = np.where(t < 60.0, 8.0, 9.0)
+    bands = lambda u: [(3.0, 6.0), (15.0, 25.0)]  # noqa: E731 (first mode, flutter mode)
+    without = replay_points(t, y, cmds, bands, 0.27)
+    checked = replay_points(t, y, cmds, bands, 0.27, airspeed_mps=measured)
+    assert [p.airspeed_mps for p in without] == [8.0, 50.0]  # the refused 50 m/s taken, and it ended the ascent
+    assert [p.airspeed_mps for p in checked] == [8.0, 9.0]
+
+
 def test_default_plan_starts_at_half_the_model_speed():
     s = default_plan(10.0)
     assert s.start_mps == 5.0 and s.step_mps == 1.0 and s.margin == 0.1

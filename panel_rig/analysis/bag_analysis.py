@@ -34,8 +34,9 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   (hysteresis), so later plateaus say nothing about the onset. Extrapolated where at least
   two decaying plateaus (U > 0.5 m/s, below the bracket) exist: a straight line through the decay
   rates of the (up to ``extrapolation_points``) fastest ones, to zero rate. Where the upper end of
-  the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated), the rate
-  is also interpolated linearly between the two bracketing plateaus (``interpolated_mps``).
+  the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated) and its lower end
+  ``decaying`` (U > 0.5 m/s; a ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
+  between the two bracketing plateaus (``interpolated_mps``).
 """
 
 from __future__ import annotations
@@ -226,7 +227,10 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
         "first_lco_mps": first_lco["airspeed_mps"] if first_lco else None,
         "extrapolated_mps": None, "extrapolation_points": [], "interpolated_mps": None,
     }
-    if lower and upper and upper["status"] == "growing" and upper["growth_rate_per_s"] > 0 > lower["growth_rate_per_s"]:
+    # a quiet plateau's rate is the noise of a response that never rose: only a measured decay is interpolated
+    if (lower and upper and lower["status"] == "decaying" and upper["status"] == "growing"
+            and lower["airspeed_mps"] > crit.min_extrapolation_airspeed_mps
+            and upper["growth_rate_per_s"] > 0 > lower["growth_rate_per_s"]):
         (u0, r0), (u1, r1) = ((p["airspeed_mps"], p["growth_rate_per_s"]) for p in (lower, upper))
         out["interpolated_mps"] = float(u0 - r0 * (u1 - u0) / (r1 - r0))
     pts = sorted(

@@ -288,6 +288,9 @@ def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: flo
 #: a plateau counts as fluttered (not subcritical) when the measured tip exceeds this fraction of the panel length
 #: (the turbulence response below U_f is tens of micrometres, an LCO tenths of L)
 FLUTTER_TIP_FRACTION = 0.02
+#: a replayed window is a test point only if the measured airspeed's median is within this of the command:
+#: 0.05 m/s (the plateau tolerance of the bag analysis) + 1 % (the tunnel's turbulence u' is 0.1 % r.m.s.)
+AIRSPEED_MATCH_MPS, AIRSPEED_MATCH_REL = 0.05, 0.01
 
 
 def _fluttered(t: np.ndarray, y: np.ndarray, t_cmd_s: float, t_from_s: float, t_end_s: float,
@@ -300,15 +303,28 @@ def _fluttered(t: np.ndarray, y: np.ndarray, t_cmd_s: float, t_from_s: float, t_
     return bool(watch.any() and np.max(np.abs(y[watch])) > FLUTTER_TIP_FRACTION * panel_length_m)
 
 
+def _tunnel_at(t: np.ndarray, airspeed_mps: np.ndarray | None, t0_s: float, t1_s: float, u_mps: float) -> bool:
+    """The measured airspeed's median over [t0_s, t1_s) is within AIRSPEED_MATCH of ``u_mps`` (True when there is
+    no measured airspeed there)."""
+    if airspeed_mps is None:
+        return True
+    u = np.asarray(airspeed_mps, float)[(t >= t0_s) & (t < t1_s)]
+    u = u[np.isfinite(u)]
+    return not u.size or abs(float(np.median(u)) - u_mps) <= AIRSPEED_MATCH_MPS + AIRSPEED_MATCH_REL * u_mps
+
+
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
-                  ssi: SSISettings = SSISettings(), dwell_s: float = np.inf) -> list[TestPoint]:
+                  ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
+                  airspeed_mps: np.ndarray | None = None) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
     ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
-    (:func:`_fluttered`)."""
+    (:func:`_fluttered`). Given the measured ``airspeed_mps`` (m/s, on ``t_s``), a window whose median is not
+    within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
+    refused, an aborted rig)."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
@@ -316,7 +332,7 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     out: list[TestPoint] = []
     for k, (tc, u) in enumerate(cmds):
         t_end = min(cmds[k + 1][0] if k + 1 < len(cmds) else t[-1], tc + settle_s + dwell_s)
-        if u <= 0 or t_end - tc - settle_s < min_dwell_s:
+        if u <= 0 or t_end - tc - settle_s < min_dwell_s or not _tunnel_at(t, airspeed_mps, tc + settle_s, t_end, u):
             continue
         if out and u <= out[-1].airspeed_mps:
             break

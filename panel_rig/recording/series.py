@@ -8,6 +8,7 @@ damaged or incomplete bag. The analysis of the arrays is in :mod:`panel_rig.anal
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from panel_rig.config import PanelConfig
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import read_metadata
 from panel_rig.recording.reader import read_bag, read_metadata_records, summary_counts, verify_bag
-from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
+from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD, REJECTED_SUFFIX
 
 
 @dataclass
@@ -37,6 +38,9 @@ class BagSeries:
     panel_length_m: float = field(default_factory=lambda: PanelConfig().panel_length_m)
     length_source: str = "default"
     parameters: dict[str, Any] = field(default_factory=dict)
+    #: commands the rig refused, per command topic: recorded on ``<topic>/rejected`` (left out of ``commands``),
+    #: and, in bags from before that, non-finite values found on the command topics themselves (always refused)
+    refused_commands: dict[str, int] = field(default_factory=dict)
 
     @property
     def dt_s(self) -> float:
@@ -59,9 +63,8 @@ def _parameters(bag_dir: Path, mcap_path: Path) -> dict[str, Any]:
         return {}
 
 
-def _topics(mcap_path: Path) -> dict[str, str]:
+def _topics(names: list[str]) -> dict[str, str]:
     """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
-    names = list(summary_counts(mcap_path))
     wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", *SHAKER_TOPICS)
     out: dict[str, str] = {}
     for suffix in wanted:
@@ -71,16 +74,19 @@ def _topics(mcap_path: Path) -> dict[str, str]:
     return out
 
 
-def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str]]:
-    """Check the bag is intact and holds the tip topic; returns (mcap path, topics)."""
+def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str], dict[str, int]]:
+    """Check the bag is intact and holds the tip topic; returns (mcap path, topics, refused commands: messages on
+    each ``<command topic>/rejected``, by command topic)."""
     bag_dir = Path(bag_dir)
     if not bag_dir.exists():
         raise RecordingError(f"{bag_dir}: no such bag directory")
     mcap_path = verify_bag(bag_dir).path
-    topics = _topics(mcap_path)
+    counts = summary_counts(mcap_path)
+    topics = _topics(list(counts))
     if "tip_displacement" not in topics:
         raise RecordingError(f"{bag_dir} has no tip_displacement topic: not a rig recording")
-    return mcap_path, topics
+    refused = {n[: -len(REJECTED_SUFFIX)]: c for n, c in counts.items() if n.endswith(REJECTED_SUFFIX)}
+    return mcap_path, topics, refused
 
 
 #: stamps beyond this (about 11.6 days) are wall-clock (real-time mode); fast-mode bags carry simulated time from 0
@@ -94,7 +100,7 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     Raises RecordingError (CorruptBagError for a damaged bag) with a one-line message.
     """
     bag_dir = Path(bag_dir)
-    mcap_path, topics = open_bag(bag_dir)
+    mcap_path, topics, refused = open_bag(bag_dir)
     params = _parameters(bag_dir, mcap_path)
     length = params.get("panel.length_m")
     ok_length = isinstance(length, (int, float)) and not isinstance(length, bool) and length > 0
@@ -117,8 +123,10 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
             modal.append((t, list(msg.position)))
         elif kind == "panel_shape":
             shape_list.append((t, np.array([p.x for p in msg.points]), np.array([p.z for p in msg.points])))
-        else:
+        elif math.isfinite(msg.data):
             commands.setdefault(kind, []).append((t, float(msg.data)))
+        else:  # a bag from before the /rejected topics: the rig refuses every non-finite command
+            refused[topic] = refused.get(topic, 0) + 1
     if len(tip) < 16:
         raise RecordingError(f"{bag_dir}: only {len(tip)} tip_displacement samples, too few to analyse")
     length_m = float(length) if ok_length else PanelConfig().panel_length_m
@@ -128,7 +136,7 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
         bag_dir=bag_dir, t_s=t_s, tip_w_over_L=w, airspeed_mps=_interp(t_s, air),
         q=_modal_on(t_s, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
         commands=commands, shapes=shape_list, panel_length_m=length_m,
-        length_source="parameters" if ok_length else "default", parameters=params,
+        length_source="parameters" if ok_length else "default", parameters=params, refused_commands=refused,
     )
 
 

@@ -36,6 +36,8 @@ MESSAGE_OPCODE = 0x05  # MCAP Message record: opcode u8, length u64, channel u16
 MESSAGE_HEADER_BYTES = 22  # channel id + sequence + log time + publish time
 PARAMETERS_RECORD = "panel_rig/parameters"
 PARAMETERS_KEY = "panel_rig.parameters"
+#: a command the rig refused is recorded on its topic + this suffix (``/rig/airspeed_cmd/rejected``)
+REJECTED_SUFFIX = "/rejected"
 
 
 def _serialize(msg: Any) -> bytes:

@@ -406,11 +406,7 @@ class RigNode(Node):
         if result.accepted and self.fast:
             self._lockstep = True
             self._answered_ns = max(self._answered_ns, stamp_ns)
-        for rec in self._recorders:
-            try:
-                rec.write(self._control_topic, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        self._record_command(self._control_topic, msg, result.accepted)
         if result.accepted and self._rerun is not None:
             try:
                 self._rerun.log_control(stamp_s, force, (arrival_s - stamp_s) * 1e3)
@@ -484,15 +480,25 @@ class RigNode(Node):
 
         def callback(msg: Float64) -> None:
             result = command(msg.data)
-            for rec in self._recorders:
-                try:
-                    rec.write(full, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
-                except Exception as exc:  # noqa: BLE001
-                    self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+            self._record_command(full, msg, result.accepted)
             if not result.accepted:
                 self.get_logger().warning(f"{topic} {msg.data!r} rejected: {result.reason}", throttle_duration_sec=0.2)
 
         return callback
+
+    def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
+        """Every command received goes into the recording: on its own topic if the rig took it, else on
+        ``<topic>/rejected`` (a replay or an analysis of the bag then sees the commands that acted)."""
+        if not self._recorders:
+            return
+        from panel_rig.recording.writer import REJECTED_SUFFIX
+
+        name = topic if accepted else topic + REJECTED_SUFFIX
+        for rec in self._recorders:
+            try:
+                rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         was = self.rig.state
