@@ -195,17 +195,24 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def load_yaml_file(path: str | Path, what: str) -> Any:
+    """The YAML document of a file; ConfigError with one line ('<what> not found: PATH', or 'PATH: malformed YAML
+    (line N: the parser's complaint)') when it cannot be read."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{what} not found: {p}")
+    try:
+        return yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
+        detail = "; ".join(x for x in (f"line {mark.line + 1}" if mark is not None else "", problem or "") if x)
+        raise ConfigError(f"{p}: malformed YAML" + (f" ({detail})" if detail else "")) from None
+
+
 def read_params_file(path: str | Path) -> dict[str, Any]:
     """Read ``panel_rig: ros__parameters:`` (or ``/**:``) from a ROS 2 parameters file, flattened."""
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"parameters file not found: {p}")
-    try:
-        doc = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1})" if mark is not None else ""
-        raise ConfigError(f"{p}: malformed YAML{where}") from None
+    doc = load_yaml_file(p, "parameters file")
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{p}: expected a mapping '{NODE_NAME}: ros__parameters: ...'")
     section = None

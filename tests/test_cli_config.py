@@ -73,11 +73,16 @@ def test_closed_reader_ends_quietly_with_sigpipe_status(args):
     assert out.stderr == ""
 
 
-def test_malformed_yaml(tmp_path):
+@pytest.mark.parametrize("args", [("modes", "--params"), ("operate", "--profile"), ("study", "--spec")])
+def test_malformed_yaml_is_one_line_with_its_place(tmp_path, args):
+    """A parameters file, an operator profile and a study spec that YAML cannot parse: status 2 and one line
+    naming the file, the line and the parser's complaint (the operator's was the parser's multi-line report)."""
     bad = tmp_path / "bad.yaml"
     bad.write_text("panel_rig:\n  ros__parameters: [1, 2\n")
-    out = run("modes", "--params", str(bad))
-    assert out.returncode == 2 and "malformed YAML" in out.stderr
+    out = run(*args, str(bad))
+    assert out.returncode == 2
+    assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert f"{bad}: malformed YAML (line 3; expected ',' or ']'" in out.stderr
 
 
 def test_config_validation_names_key(tmp_path):

@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped
 from rclpy.node import Node
@@ -35,6 +34,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from panel_rig.config import ConfigError, load_yaml_file
 from panel_rig.ros.session import ros_session
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
@@ -121,13 +121,11 @@ def parse_profile(doc: Any) -> list[Step]:
 
 def load_profile(path: str | Path) -> list[Step]:
     """Read and validate a profile file."""
-    p = Path(path)
-    if not p.is_file():
-        raise ProfileError(f"profile not found: {p}")
     try:
-        return parse_profile(yaml.safe_load(p.read_text()))
-    except yaml.YAMLError as exc:
-        raise ProfileError(f"{p}: malformed YAML ({exc})") from None
+        doc = load_yaml_file(path, "profile")
+    except ConfigError as exc:
+        raise ProfileError(str(exc)) from None
+    return parse_profile(doc)
 
 
 def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:

@@ -23,9 +23,8 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
-from panel_rig.config import SCHEMA, ConfigError, config_from_flat, read_params_file
+from panel_rig.config import SCHEMA, ConfigError, config_from_flat, load_yaml_file, read_params_file
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 
 KINDS = ("flutter_map", "uncertainty", "bifurcation")
@@ -185,13 +184,7 @@ def fingerprint(spec: Mapping[str, Any], base: Mapping[str, Any]) -> str:
 def load_spec(path: str | Path, params: str | Path | None = None) -> Study:
     """Read and expand a study file; ``params`` is the base parameters file (default the paper's)."""
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"spec file not found: {p}")
-    try:
-        raw = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise ConfigError(f"{p}: malformed YAML{f' (line {mark.line + 1})' if mark else ''}") from None
+    raw = load_yaml_file(p, "spec file")
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{p}: expected a mapping with 'kind:'")
     from panel_rig.config import default_params_path
