@@ -7,13 +7,13 @@ Every subcommand takes ``--params FILE`` (a ROS 2 parameters file, default the p
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from panel_rig import jsonio
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 
@@ -28,17 +28,9 @@ def _config(args: argparse.Namespace) -> PanelConfig:
 
 def _emit(args: argparse.Namespace, payload: dict[str, Any], table: Callable[[], str]) -> None:
     if args.json:
-        print(json.dumps(payload, default=_jsonable))
+        print(jsonio.dumps(payload))
     else:
         print(table())
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 # ---- subcommands ------------------------------------------------------------------------------
@@ -370,7 +362,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     out = Path(args.out)
     result = build_report(cfg, out, log=lambda s: print(f"panel-rig paper: {s}", file=sys.stderr),
                           sweep_s=args.sweep_duration)
-    print((out / "report.md").read_text() if not args.json else json.dumps(result, default=float))
+    print((out / "report.md").read_text() if not args.json else jsonio.dumps(result, default=float))
     return 0
 
 
@@ -625,7 +617,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001 - e.g. VizError: never a traceback
         print(f"{ANALYZE_PROG}: {args.bag}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    print(jsonio.dumps(result, indent=2) if args.json else format_table(result))
     return 0
 
 

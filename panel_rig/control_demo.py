@@ -16,7 +16,6 @@ Starts the rig node (fast mode: the controller runs in lock-step with it, the tr
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import random
@@ -29,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from panel_rig import jsonio
 from panel_rig.processes import stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,7 +224,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
     summary.update(bag=str(new[-1]) if new else None, rerun=str(rrd) if rrd.exists() else None,
                    node_exit=node_code, controller_exit=ctl_code, node_log=str(node_log))
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    (out / "summary.json").write_text(jsonio.dumps(summary, indent=1))
     return summary
 
 
@@ -248,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     ok = s.get("quiet") and s.get("onset_error") is not None and abs(s["onset_error"]) <= 0.05 and s["bag"]
     if args.json:
-        print(json.dumps(s))
+        print(jsonio.dumps(s))
     else:
         onset = s.get("emulated_closed_loop_onset_mps")
         print(f"\nopen-loop U_f {s['open_loop_flutter_speed_mps']:.3f} m/s; closed loop: predicted "

@@ -9,7 +9,6 @@ exists) into PNGs and prints what happened.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import random
 import subprocess
@@ -18,6 +17,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from panel_rig import jsonio
 from panel_rig.processes import stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +44,7 @@ def _analyze(bag: Path, out: Path) -> str:
     from panel_rig.cli import analyze_bag, format_table
 
     result = analyze_bag(bag, plots_dir=out)
-    (out / "analysis.json").write_text(json.dumps(result, indent=1, default=str))
+    (out / "analysis.json").write_text(jsonio.dumps(result, indent=1, default=str))
     return format_table(result)
 
 

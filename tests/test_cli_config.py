@@ -140,3 +140,12 @@ def test_physics_commands_work_without_the_recording_and_viz_extras():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["natural_frequencies_hz"][0] > 0
+
+
+def test_json_has_no_non_finite_numbers():
+    """A diverged run has no RMS: null in the JSON (RFC 8259 has no NaN; strict parsers such as jq refused the
+    bare NaN that was printed)."""
+    out = run("lco", "--airspeed", "15", "--variant", "full", "--duration", "5", "--json")
+    assert out.returncode == 0, out.stderr
+    d = json.loads(out.stdout, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert d["diverged"] is True and d["rms_tip_w_over_L"] is None and d["dominant_frequency_hz"] is None

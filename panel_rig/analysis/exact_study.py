@@ -8,12 +8,12 @@ and exact_study.json and prints the markdown tables of docs/validation.md (secti
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from panel_rig import jsonio
 from panel_rig.analysis.flutter import find_flutter
 from panel_rig.analysis.lco import LCOResult, lco_metrics, lco_sweep
 from panel_rig.config import PanelConfig, load_config
@@ -163,7 +163,7 @@ def main(argv=None) -> int:
                                          for p in h[d]))
     payload.update(hysteresis=hyst, onset_stop={v: onset_and_stop(h) for v, h in hyst.items()})
     path = out / ("exact_hysteresis.json" if args.skip_fig8 else "exact_study.json")
-    path.write_text(json.dumps(payload, indent=1, default=float))
+    path.write_text(jsonio.dumps(payload, indent=1, default=float))
     return 0
 
 

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from panel_rig import jsonio
 from panel_rig.analysis import plots
 from panel_rig.analysis import published as paper
 from panel_rig.analysis.flutter import eigenvalues, find_flutter
@@ -177,7 +177,7 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
         f"ROM march {rt:.0f}x real time on one core", True, "benchmarks/run.py for all ratios")
     result = {"rows": rows, "wall_s": time.perf_counter() - t_start, "flutter_ratio_to_paper": ratio,
               "tip_rms_check": rms(tip3[-2048:])}
-    (out / "results.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / "results.json").write_text(jsonio.dumps(result, indent=2, default=float))
     (out / "report.md").write_text(markdown(rows, result["wall_s"]))
     return result
 

@@ -9,7 +9,6 @@ and the energy error of the free structure per scheme.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib
@@ -19,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.integrate import cumulative_simpson, simpson  # noqa: E402
 
+from panel_rig import jsonio
 from panel_rig.analysis.flutter import find_flutter  # noqa: E402
 from panel_rig.analysis.lco import run_lco  # noqa: E402
 from panel_rig.analysis.signals import window_rms  # noqa: E402
@@ -112,11 +112,11 @@ def study(out: Path) -> dict:
     fig.tight_layout()
     fig.savefig(out / "scheme_energy.png", dpi=100)
     plt.close(fig)
-    (out / "scheme_study.json").write_text(json.dumps(numbers, indent=1))
+    (out / "scheme_study.json").write_text(jsonio.dumps(numbers, indent=1))
     return numbers
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/figures")
-    print(json.dumps(study(Path(ap.parse_args().out)), indent=1))
+    print(jsonio.dumps(study(Path(ap.parse_args().out)), indent=1))

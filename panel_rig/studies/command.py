@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
+from panel_rig import jsonio
 from panel_rig.config import ConfigError
 
 
@@ -25,10 +25,10 @@ def run(args: Any) -> int:
                      progress=show)
     ds = info["store"].load()
     summary = summarize(study, ds)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "summary.json").write_text(jsonio.dumps(summary, indent=1) + "\n")
     files = plot(study, ds, summary, out)
     if args.json:
-        print(json.dumps({"cases": case_records(study, ds), "wall_s": info["wall_s"], "workers": info["workers"],
+        print(jsonio.dumps({"cases": case_records(study, ds), "wall_s": info["wall_s"], "workers": info["workers"],
                           "computed": info["computed"], "out": str(out), "summary": summary,
                           "plots": [str(f) for f in files]}))
         return 0
