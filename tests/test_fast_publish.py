@@ -350,3 +350,40 @@ def test_late_real_time_tick_publishes_the_samples_it_owes(ros_env: dict[str, st
     assert [len(p) for p in published] == [1, 1, 5]  # the late tick: four owed samples and the present one
     owed = np.concatenate(published[1:])
     assert owed == pytest.approx([0.004, 0.006, 0.008, 0.010, 0.012, 0.0141], abs=dt)  # at whole steps
+
+
+def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """A node recording with `rerun:=connect:URL` where no viewer listens: closing it (what SIGINT does) closes the
+    bag first and then ends, reporting the undelivered viewer data; it used to wait forever in rerun's flush, with
+    the bag still open (a bag without its summary, for `panel-rig bag recover`)."""
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.recording import verify_bag
+    from panel_rig.ros.node import RigNode, spin
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
+        Parameter("bag_dir", value=str(tmp_path)), Parameter("rerun", value="connect:rerun+http://127.0.0.1:9/proxy")])
+    errors: list[str] = []
+    node.rig.log.error = errors.append  # type: ignore[method-assign]
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        spin(node, executor, lambda: node.rig.time_s > 200.0)  # a viewer's worth of undelivered data
+        executor.shutdown()
+        closing = threading.Thread(target=node.close, daemon=True)
+        closing.start()
+        closing.join(timeout=30.0)  # at most the 5 s flush timeout, then rerun's own 5 s last connection attempt
+        assert not closing.is_alive(), "node.close() still waiting for the viewer after 30 s"
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    bag = next(tmp_path.iterdir())
+    assert verify_bag(bag).path.stat().st_size > 0  # closed: summary and index written
+    assert any("Rerun data not delivered" in e for e in errors), errors

@@ -493,6 +493,6 @@ class Rig:
         for sink in self.sinks:
             try:
                 sink.close()
-            except Exception:
-                self.log.error(f"closing sink {sink!r} failed: {traceback.format_exc(limit=3)}")
+            except Exception as exc:  # noqa: BLE001 (every other sink still gets closed)
+                self.log.error(f"closing sink {type(sink).__name__} failed: {type(exc).__name__}: {exc}")
         self.sinks.clear()

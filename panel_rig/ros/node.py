@@ -754,14 +754,15 @@ class RigNode(Node):
         self._publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp, "reliable")
 
     def close(self) -> None:
-        """Close sinks and recorders (idempotent)."""
-        self.rig.close()
+        """Close recorders, then the rig's sinks (idempotent): the bag is closed first, whatever a viewer sink
+        does on closing."""
         for rec in self._recorders:
             try:
                 rec.close()
             except Exception as exc:  # noqa: BLE001
                 self.get_logger().error(f"closing the recording failed: {exc}")
         self._recorders.clear()
+        self.rig.close()
 
 
 def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:

@@ -28,6 +28,8 @@ FLUTTER_UF = "flutter/predicted_uf_mps"
 FLUTTER_MARGIN = "flutter/margin"
 FLUTTER_VG = "flutter_vg"
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
+#: how long close() waits for the last data to reach the viewer or the .rrd file (s)
+FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
 # How a time-series view draws the samples that share a pixel when zoomed out. Rerun's default is the
 # average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
 # its envelope at any zoom.
@@ -269,8 +271,12 @@ class RerunLogger:
         rec, self._rec = self._rec, None
         if rec is None:
             return
-        rec.flush()
-        rec.disconnect()
+        try:  # bounded: a viewer that is gone must not hang the node's shutdown (rerun's default waits forever)
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S[self.mode])
+        except RuntimeError as exc:  # rerun's timeout and connection errors
+            raise VizError(f"Rerun data not delivered ({self.mode}): {exc}") from None
+        finally:
+            rec.disconnect()  # gRPC: at most rerun's own 5 s for a last connection attempt
 
     # ------------------------------------------------------------------ internals
     @staticmethod
