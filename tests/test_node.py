@@ -398,6 +398,20 @@ def test_invalid_parameters_exit_code_2(ros_env: dict[str, str]) -> None:
     assert "panel.length_m" in out
 
 
+@pytest.mark.parametrize("params, says", [
+    (("record:=true", "bag_dir:=/proc/no_such_dir"), "cannot record in '/proc/no_such_dir'"),
+    (("rerun:=save:/proc/no_such_dir/x.rrd",), "cannot open the Rerun sink 'save:/proc/no_such_dir/x.rrd'"),
+])
+def test_a_sink_asked_for_and_impossible_stops_the_start(ros_env: dict[str, str], params: tuple[str, ...],
+                                                           says: str) -> None:
+    """record:=true with a bag directory that cannot be made, or a Rerun file that cannot be written: exit 2 naming
+    it (the node used to log an error and run on, unrecorded)."""
+    proc = _start(ros_env, *params)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 2, out[-2000:]
+    assert says in out
+
+
 def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, ros_env: dict[str, str], tmp_path: Path) -> None:
     reset(client)
     profile = tmp_path / "profile.yaml"

@@ -308,8 +308,8 @@ class RigNode(Node):
 
     # ---- sinks -----------------------------------------------------------------------------------
     def _open_sinks(self, p: dict[str, Any]) -> None:
-        """Recording (``record``/``bag_dir``) and Rerun (``rerun``) if those packages are present; the flutter
-        monitor (``flutter_monitor``)."""
+        """The flutter monitor (``flutter_monitor``), Rerun (``rerun``) and the recording (``record``/``bag_dir``).
+        A sink asked for that cannot be opened (a bad path, a missing package) is a StartupError."""
         self._flutter_monitor: Any = None
         if p["flutter_monitor"] and hasattr(self.rig.stepper, "model"):
             from panel_rig.rig.flutter_run import FlutterMonitorSink
@@ -323,18 +323,7 @@ class RigNode(Node):
             self.rig.sinks.append(self._flutter_monitor)
         self._flutter_hold = bool(p["flutter_test.hold"] and p["fast"] and self._flutter_monitor is not None)
         self._hold_since: float | None = None
-        if p["record"]:
-            try:
-                from panel_rig.recording import BagWriter
-
-                run = time.strftime("rig_%Y%m%d_%H%M%S")
-                writer = BagWriter(Path(p["bag_dir"]) / run)
-                params = {prm.name: prm.value for prm in self._parameters.values()}
-                writer.write_parameters(params)
-                self._recorders.append(writer)
-                self.get_logger().info(f"recording to {writer.bag_dir}")
-            except Exception as exc:  # noqa: BLE001 (a missing recorder must not stop the rig)
-                self.get_logger().error(f"recording disabled: {type(exc).__name__}: {exc}")
+        # asked for and not possible: the node does not start (a run believed recorded must not go unrecorded)
         self._rerun: Any = None
         if p["rerun"] != "none":
             mode, _, target = p["rerun"].partition(":")
@@ -342,10 +331,21 @@ class RigNode(Node):
                 from panel_rig.viz import RerunLogger
 
                 self._rerun = RerunLogger(len(self._names), mode=mode, target=target or None)
-                self.rig.sinks.append(self._rerun)
-                self.get_logger().info(f"rerun sink: {p['rerun']}")
-            except Exception as exc:  # noqa: BLE001 (a missing viewer must not stop the rig)
-                self.get_logger().error(f"rerun disabled: {type(exc).__name__}: {exc}")
+            except Exception as exc:  # noqa: BLE001 (VizError, rerun's own errors, no rerun-sdk)
+                raise StartupError(f"cannot open the Rerun sink {p['rerun']!r}: {type(exc).__name__}: {exc}") from None
+            self.rig.sinks.append(self._rerun)
+            self.get_logger().info(f"rerun sink: {p['rerun']}")
+        if p["record"]:
+            try:
+                from panel_rig.recording import BagWriter
+
+                writer = BagWriter(Path(p["bag_dir"]) / time.strftime("rig_%Y%m%d_%H%M%S"))
+                self._recorders.append(writer)
+                writer.write_parameters({prm.name: prm.value for prm in self._parameters.values()})
+            except Exception as exc:  # noqa: BLE001 (RecordingError, OSError, no mcap)
+                self.close()
+                raise StartupError(f"cannot record in {p['bag_dir']!r}: {type(exc).__name__}: {exc}") from None
+            self.get_logger().info(f"recording to {writer.bag_dir}")
 
     def _publish_flutter(self, time_s: float, point: Any, decision: Any, fluttered: bool = False) -> None:
         """One flutter-monitor message per identified plateau (to the topic, the bag and the viewer)."""
