@@ -387,3 +387,51 @@ def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[
     bag = next(tmp_path.iterdir())
     assert verify_bag(bag).path.stat().st_size > 0  # closed: summary and index written
     assert any("Rerun data not delivered" in e for e in errors), errors
+
+
+def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """The disk fills up during a recorded run: the rig runs on and /diagnostics says so (level ERROR, "recording
+    failed: ...", `recording: failed` and a count); it was only in the node's log."""
+    import errno
+
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode, spin
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
+        Parameter("bag_dir", value=str(tmp_path))])
+    published: list = []
+    publish = node._publish
+    node._publish = lambda pub, msg, *a, **k: (published.append(msg) if pub is node.pub_diag else None,  # type: ignore
+                                               publish(pub, msg, *a, **k))[1]
+
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    try:
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        node.publish_diagnostics()
+        spin(node, executor, lambda: node.rig.time_s > 0.5)
+        node.publish_diagnostics()
+        node._recorders[0].write_block = full  # type: ignore[method-assign]
+        spin(node, executor, lambda: node.rig.time_s > 1.0)
+        node.publish_diagnostics()
+        executor.shutdown()
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    statuses = [m.status[0] for m in published]
+    values = [{kv.key: kv.value for kv in s.values} for s in statuses]
+    assert statuses[1].level == DiagnosticStatus.OK and values[1]["recording"] == "on"
+    assert statuses[-1].level == DiagnosticStatus.ERROR
+    assert statuses[-1].message.startswith("recording failed: ") and "No space left" in statuses[-1].message
+    assert values[-1]["recording"] == "failed" and int(values[-1]["recording_errors"]) > 0
+    assert node.rig.time_s > 1.0  # the rig ran on

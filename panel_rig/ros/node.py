@@ -108,6 +108,7 @@ class RigNode(Node):
         self._x_over_L = np.linspace(0.0, 1.0, SHAPE_POINTS)
         self._trailing_edge_x_m = self.cfg.airfoil_length_m + self.cfg.panel_length_m
         self._recorders: list[Any] = []
+        self._record_errors, self._diag_record_errors, self._last_record_error = 0, 0, ""
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
 
@@ -373,10 +374,17 @@ class RigNode(Node):
 
     def _publish_bytes(self, pub: Any, msg: Any, data: bytes, stamp_ns: int, qos: str = "sensor") -> None:
         pub.publish(data)
+        self._record(lambda rec: rec.write(self._full[pub], msg, stamp_ns, qos=qos, data=data))
+
+    def _record(self, write: Callable[[Any], Any]) -> None:
+        """``write(recorder)`` for every recorder. A failure (a full disk) is logged, counted and shown in
+        /diagnostics (level ERROR while it goes on); the rig carries on."""
         for rec in self._recorders:
             try:
-                rec.write(self._full[pub], msg, stamp_ns, qos=qos, data=data)
-            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
+                write(rec)
+            except Exception as exc:  # noqa: BLE001
+                self._record_errors += 1
+                self._last_record_error = str(exc)
                 self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
 
     def _topic_name(self, name: str) -> str:
@@ -495,11 +503,7 @@ class RigNode(Node):
         from panel_rig.recording.writer import REJECTED_SUFFIX
 
         name = topic if accepted else topic + REJECTED_SUFFIX
-        for rec in self._recorders:
-            try:
-                rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable")
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        self._record(lambda rec: rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable"))
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         was = self.rig.state
@@ -634,12 +638,8 @@ class RigNode(Node):
         z_m = np.asarray(self.rig.shape_w_over_L(self._x_over_L, q), dtype=float) * self.cfg.panel_length_m
         stamps = np.array([self._stamp_ns(float(t)) for t in times_s], dtype=np.int64)
         rows = self._shape_cdr.pack_block(stamps, z_m, aborted)
-        for rec in self._recorders:
-            try:
-                rec.write_block([(self._full[self.pub_shape], self._shape_cdr.message(aborted))], stamps, [rows],
-                                qos="reliable")
-            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        self._record(lambda rec: rec.write_block([(self._full[self.pub_shape], self._shape_cdr.message(aborted))],
+                                                 stamps, [rows], qos="reliable"))
         if self.pub_shape.get_subscription_count():
             for row in messages.EncodedBlock.rows(rows):
                 self.pub_shape.publish(row)
@@ -651,11 +651,8 @@ class RigNode(Node):
         """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
         messages (sample by sample, topics in the same order as before) if anyone subscribes to it: with no
         matched subscription (best-effort/volatile sensor QoS; /clock volatile) a publish reaches nobody."""
-        for rec in self._recorders:
-            try:
-                rec.write_block([(self._full[pub], msg) for pub, msg in pubs], enc.stamps_ns, enc.payloads)
-            except Exception as exc:  # noqa: BLE001 (recording errors are logged, the rig carries on)
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+        self._record(lambda rec: rec.write_block([(self._full[pub], msg) for pub, msg in pubs], enc.stamps_ns,
+                                                 enc.payloads))
         streams = [(pub.publish, enc.rows(data)) for (pub, _), data in zip(pubs, enc.payloads)
                    if pub.get_subscription_count()]
         if self.pub_clock is not None and self.pub_clock.get_subscription_count():
@@ -740,12 +737,19 @@ class RigNode(Node):
             "tick_jitter_p99_ms": f"{jitter:.3f}",
             "physics_dt_s": f"{self.dt_s:.9g}",
             "sink_errors": rig.sink_errors,
+            "recording": ("failed" if self._record_errors else "on") if self._recorders else "off",
+            "recording_errors": self._record_errors,
+            "last_recording_error": self._last_record_error,
             **self._control_diagnostics(),
         }
         rejected_now = rig.rejected_count - self._diag_rejected
         self._diag_rejected = rig.rejected_count
+        record_errors_now = self._record_errors - self._diag_record_errors
+        self._diag_record_errors = self._record_errors
         if rig.state == ABORTED:
             level, message = DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
+        elif record_errors_now:
+            level, message = DiagnosticStatus.ERROR, f"recording failed: {self._last_record_error}"
         elif rejected_now:
             level, message = DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
         else:
