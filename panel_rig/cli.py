@@ -788,6 +788,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # the exit status of a command whose reader went away (128 + SIGPIPE), as a shell reports `yes | head -1`'s yes
 BROKEN_PIPE_STATUS = 141
+INTERRUPTED_STATUS = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -799,6 +800,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # `panel-rig ... | head -1`: the reader closed the pipe; end quietly, not a traceback
         _silence_stdout()
         return BROKEN_PIPE_STATUS
+    except KeyboardInterrupt:  # Ctrl-C outside a program's own stop handling (e.g. just after it finished)
+        print("panel-rig: interrupted", file=sys.stderr)
+        return INTERRUPTED_STATUS
 
 
 def _run_subcommand(argv: Sequence[str]) -> int:
@@ -808,9 +812,6 @@ def _run_subcommand(argv: Sequence[str]) -> int:
     except (UsageError, ConfigError, ValueError) as exc:
         print(f"panel-rig: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("panel-rig: interrupted", file=sys.stderr)
-        return 130
 
 
 def _silence_stdout() -> None:

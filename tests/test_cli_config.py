@@ -149,3 +149,18 @@ def test_json_has_no_non_finite_numbers():
     assert out.returncode == 0, out.stderr
     d = json.loads(out.stdout, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert d["diverged"] is True and d["rms_tip_w_over_L"] is None and d["dominant_frequency_hz"] is None
+
+
+@pytest.mark.parametrize("program", ["operate", "run"])
+def test_a_late_interrupt_of_a_handed_on_program_is_status_130(monkeypatch, capsys, program):
+    """Ctrl-C that lands outside a program's own stop handling (the README test's SIGINT reached the operator just
+    as it finished, after its signal handlers were restored): status 130 and one line, not death by SIGINT with a
+    traceback."""
+    from panel_rig import cli
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli.PROGRAMS, program, (interrupted, *cli.PROGRAMS[program][1:]))
+    assert cli.main([program, "--profile", "x.yaml"]) == cli.INTERRUPTED_STATUS == 130
+    assert capsys.readouterr().err == "panel-rig: interrupted\n"
