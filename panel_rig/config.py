@@ -197,7 +197,7 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def load_yaml_file(path: str | Path, what: str) -> Any:
     """The YAML document of a file; ConfigError with one line ('<what> not found: PATH', or 'PATH: malformed YAML
-    (line N: the parser's complaint)') when it cannot be read."""
+    (line N; the parser's complaint)') when it cannot be read."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{what} not found: {p}")
