@@ -205,8 +205,11 @@ class Progress:
 
 
 def _airspeed(value: float) -> float:
-    if not np.isfinite(value) or value < 0 or value > 200:
-        raise UsageError(f"airspeed must be in [0, 200] m/s, got {value}")
+    from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
+
+    if not np.isfinite(value) or value < 0 or value > MAX_AIRSPEED_MPS:
+        raise UsageError(f"airspeed must be in [0, {MAX_AIRSPEED_MPS:g}] m/s (the incompressible lattice holds to "
+                         f"about Mach 0.3), got {value:g}")
     return value
 
 

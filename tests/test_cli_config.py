@@ -50,6 +50,10 @@ def test_flutter_plot(tmp_path):
     (["modes", "--params", "/no/such/file.yaml"], "not found"),
     (["flutter", "--rom-modes", "0", "--aero", "rom"], "rom-modes"),
     (["modes", "--set", "structure.modes=two"], "structure.modes"),
+    # the lattice is incompressible: no airspeed beyond Mach ~0.3 (a 200 m/s run gave a 781 Hz "LCO")
+    (["lco", "--airspeed", "150"], "Mach 0.3"),
+    (["lco-sweep", "--airspeeds", "90:110:10"], "Mach 0.3"),
+    (["flutter", "--vg", "10:120:10"], "Mach 0.3"),
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
     out = run(*args)
@@ -93,6 +97,15 @@ def test_config_validation_names_key(tmp_path):
     p.write_text("panel_rig:\n  ros__parameters:\n    aero:\n      wake_relaxation: 1.5\n")
     with pytest.raises(ConfigError, match="aero.wake_relaxation"):
         load_config(p)
+
+
+def test_the_node_refuses_an_airspeed_limit_beyond_the_incompressible_lattice():
+    from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
+    from panel_rig.ros.params import check_node_params
+
+    assert check_node_params({"safety.max_airspeed_mps": MAX_AIRSPEED_MPS}) == []
+    problems = check_node_params({"safety.max_airspeed_mps": 150.0})
+    assert len(problems) == 1 and problems[0].startswith("safety.max_airspeed_mps"), problems
 
 
 def test_default_file_is_the_paper():

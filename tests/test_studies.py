@@ -96,6 +96,8 @@ def test_bad_bifurcation_spec_names_the_key(base):
         parse_spec({**spec, "direction": "sideways"}, base)
     with pytest.raises(ConfigError, match="airspeeds"):
         parse_spec({**spec, "airspeeds": [12.0, 10.0]}, base)
+    with pytest.raises(ConfigError, match="airspeeds.*Mach 0.3"):  # beyond the incompressible lattice
+        parse_spec({**spec, "airspeeds": [10.0, 150.0]}, base)
 
 
 def test_unknown_spec_key_exits_2_with_one_line(tmp_path):

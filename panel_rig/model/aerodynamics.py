@@ -26,6 +26,9 @@ import numpy as np
 #: element centre, as for a vortex sheet of uniform strength over each element: second order); "vortex" counts
 #: the part of the element behind its quarter-point vortex, 3/4 (the exact integral of the jump of point vortices).
 RUNNING_SUM_OWN = {"inclusive": 1.0, "midpoint": 0.5, "vortex": 0.75}
+#: the highest airspeed the lattice is run at (m/s): it is incompressible (the paper's "low subsonic flow"), which
+#: holds to about Mach 0.3, 103 m/s in air at 20 C (speed of sound 343 m/s); every entry point refuses more
+MAX_AIRSPEED_MPS = 100.0
 
 
 @dataclass(frozen=True)

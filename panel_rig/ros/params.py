@@ -17,6 +17,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
 from panel_rig.config import SCHEMA, PanelConfig, interval_rule
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import TunnelSettings
@@ -83,8 +84,9 @@ NODE_PARAMS: dict[str, NodeParam] = {
     "tunnel.time_constant_s": _number(_TUNNEL.time_constant_s, True, "airspeed first-order lag, s", 0.0, 1000.0),
     "tunnel.max_rate_mps2": _number(_TUNNEL.max_rate_mps2, True, "airspeed rate limit, m/s^2 (0: none)", 0.0, 1000.0),
     "safety.max_airspeed_mps": _number(_LIMITS.max_airspeed_mps, True,
-                                       "airspeed limit, m/s (lowering it below the set-point ramps the tunnel down)",
-                                       0.0, 1000.0, lo_open=True),
+                                       "airspeed limit, m/s (lowering it below the set-point ramps the tunnel down; "
+                                       "the incompressible lattice holds to about Mach 0.3)",
+                                       0.0, MAX_AIRSPEED_MPS, lo_open=True),
     "safety.max_tip_w_over_L": _number(_LIMITS.max_tip_w_over_L, True,
                                        "tip |w/L| that aborts the run (1: the panel's own length; the wall may "
                                        "come first; also when lowered below the present tip)",

@@ -25,6 +25,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from panel_rig.config import SCHEMA, ConfigError, config_from_flat, load_yaml_file, read_params_file
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 
 KINDS = ("flutter_map", "uncertainty", "bifurcation")
@@ -257,8 +258,9 @@ def _bifurcation(raw: Mapping[str, Any], vary: Mapping[str, Any], keys: tuple[st
         speeds = np.array([_number("airspeeds", u) for u in a], dtype=float)
     else:
         raise _fail("airspeeds", f"expected a non-empty list or {{start, stop, num}}, got {a!r}")
-    if np.any(speeds < 0) or np.any(speeds > 200) or np.any(np.diff(speeds) <= 0):
-        raise _fail("airspeeds", "must increase strictly, within [0, 200] m/s")
+    if np.any(speeds < 0) or np.any(speeds > MAX_AIRSPEED_MPS) or np.any(np.diff(speeds) <= 0):
+        raise _fail("airspeeds", f"must increase strictly, within [0, {MAX_AIRSPEED_MPS:g}] m/s (the incompressible "
+                                 "lattice holds to about Mach 0.3)")
     variants = raw.get("variants", [DEFAULT_VARIANT])
     if not isinstance(variants, list) or not variants:
         raise _fail("variants", f"expected a non-empty list of {', '.join(VARIANTS)}, got {variants!r}")
