@@ -69,6 +69,10 @@ def base():
     ({"kind": "flutter_mapp"}, "kind"),
     ({"aero": "none"}, "aero"),
     ({"samples": 3}, "samples"),  # an uncertainty key in a flutter map
+    ({"vary": {"panel.thickness_m": [0.0003, 0.0003]}}, "twice"),
+    # refused from the counts, before 10^10 cases are built (that took minutes and gigabytes)
+    ({"vary": {"panel.thickness_m": {"start": 1e-4, "stop": 1e-3, "num": 100_000},
+               "panel.length_m": {"start": 0.2, "stop": 0.3, "num": 100_000}}}, "10000000000 cases exceed"),
 ])
 def test_bad_flutter_spec_names_the_key(base, change, needle):
     with pytest.raises(ConfigError, match=needle.replace(".", r"\.")):
@@ -81,6 +85,8 @@ def test_bad_flutter_spec_names_the_key(base, change, needle):
     ({"vary": {"panel.thickness_m": {"normal": [0.00036, 0.001]}}}, "sample"),  # draws negative thicknesses
     ({"vary": {"aero.load_point": {"choice": ["quarter", "tip"]}}}, "aero.load_point"),
     ({"samples": 0}, "samples"),
+    ({"samples": 100_000_000}, "samples: 100000000 cases exceed"),
+    ({"seed": -1}, "seed"),
 ])
 def test_bad_uncertainty_spec_names_the_key(base, change, needle):
     spec = {"kind": "uncertainty", "samples": 50, "seed": 1, "vary": {"air.density_kgpm3": {"uniform": [1.0, 1.3]}}}
@@ -98,6 +104,79 @@ def test_bad_bifurcation_spec_names_the_key(base):
         parse_spec({**spec, "airspeeds": [12.0, 10.0]}, base)
     with pytest.raises(ConfigError, match="airspeeds.*Mach 0.3"):  # beyond the incompressible lattice
         parse_spec({**spec, "airspeeds": [10.0, 150.0]}, base)
+    with pytest.raises(ConfigError, match="duration_s: must be at least one physics step"):
+        parse_spec({**spec, "duration_s": 1e-5}, base)
+
+
+@pytest.mark.parametrize("occupant", ["zarr_v2_group", "file"])
+def test_the_store_never_replaces_what_it_did_not_make(base, tmp_path, occupant):
+    from panel_rig.studies.store import STORE_NAME, Store, StoreError
+
+    study = parse_spec(FLUTTER_SPEC, base)
+    there = tmp_path / STORE_NAME
+    if occupant == "file":
+        there.write_text("somebody's notes")
+    else:  # a Zarr v2 group has no zarr.json, but it is data
+        there.mkdir()
+        (there / ".zgroup").write_text('{"zarr_format": 2}')
+    with pytest.raises(StoreError, match="not a panel-rig study store"):
+        Store.open(tmp_path, study)
+    assert (there / ".zgroup").is_file() if occupant != "file" else there.read_text() == "somebody's notes"
+    (tmp_path / "plain").write_text("")
+    with pytest.raises(StoreError, match="cannot create the output directory"):
+        Store.open(tmp_path / "plain" / "sub", study)
+    empty = tmp_path / "empty"
+    (empty / STORE_NAME).mkdir(parents=True)  # an empty directory is taken
+    assert Store.open(empty, study).missing().size == len(study.cases)
+
+
+def test_an_unreachable_scheduler_is_one_clear_error(base, tmp_path):
+    import socket
+
+    from panel_rig.studies.runner import ClusterError, run_study
+
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(ClusterError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"):
+        run_study(parse_spec(FLUTTER_SPEC, base), tmp_path, scheduler=f"tcp://127.0.0.1:{port}", timeout_s=2.0)
+
+
+def test_a_lost_cluster_keeps_what_arrived_and_says_the_rerun_resumes(base, tmp_path):
+    from dask.distributed import LocalCluster
+
+    from panel_rig.studies.runner import ClusterError, run_study
+
+    spec = {**FLUTTER_SPEC, "vary": {"panel.thickness_m": {"start": 3.0e-4, "stop": 4.0e-4, "num": 40}}}
+    study = parse_spec(spec, base)
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, silence_logs=logging.CRITICAL)
+    try:
+        with pytest.raises(ClusterError, match=r"lost the Dask cluster .* of 40 cases are stored in .*resumes"):
+            run_study(study, tmp_path, scheduler=cluster.scheduler_address, flush_s=0.0,
+                      on_flush=lambda client, written: client.shutdown())
+    finally:
+        cluster.close()
+    from panel_rig.studies.store import Store
+
+    stored = int(Store.open(tmp_path, study).done_mask().sum())
+    assert 1 <= stored < 40
+
+
+def test_a_case_unstable_at_the_scan_start_is_counted_apart(base):
+    """The ROM (Ra = 12) without structural damping is unstable at 1 m/s (its error at high reduced frequency); the
+    full lattice is not: the case says so, and the summary counts it instead of dropping it."""
+    import xarray as xr
+
+    from panel_rig.studies import cases
+    from panel_rig.studies.report import status_counts
+
+    undamped = {**base, "structure.damping_ratio": 0.0, "aero.rom_modes": 12}
+    assert cases.flutter_case(undamped, "rom")["status"] == cases.UNSTABLE_AT_START
+    assert cases.flutter_case(undamped, "full")["status"] == cases.FOUND
+    ds = xr.Dataset({"status": ("case", np.array([0, 3, 3, 1, 2], np.int8)),
+                     "done": ("case", np.array([True, True, True, True, False]))})
+    assert status_counts(ds) == {"no_flutter_below_60_mps": 1, "unstable_at_1_mps": 2, "failed": 0}
 
 
 def test_unknown_spec_key_exits_2_with_one_line(tmp_path):
@@ -175,7 +254,7 @@ def results_of(ds) -> list[tuple]:
 
 
 def serial_results(serial) -> list[tuple]:
-    status = {"flutter": 0, "none below 60 m/s": 1, "failed": 2}
+    status = {"flutter": 0, "none below 60 m/s": 1, "failed": 2, "unstable at 1 m/s": 3}
     return [(c["flutter_speed_mps"], c["flutter_frequency_hz"], c["dominant_mode"] or 0, status[c["status"]])
             for c in serial["cases"]]
 

@@ -53,6 +53,10 @@ def growth_rate(model: AeroelasticModel, airspeed_mps: float, **kw) -> float:
     return float(np.max(eigenvalues(model, airspeed_mps, **kw).s.real))
 
 
+class UnstableAtScanStart(ValueError):
+    """The system is already unstable at the lowest airspeed of the flutter scan (no crossing to find)."""
+
+
 @dataclass(frozen=True)
 class FlutterPoint:
     speed_mps: float
@@ -69,7 +73,9 @@ def find_flutter(model: AeroelasticModel, aero: str = "full", rom_modes: int | N
     speeds = np.linspace(u_min, u_max, n_scan)
     prev_u, prev_g = speeds[0], growth_rate(model, speeds[0], **kw)
     if prev_g > 0:
-        raise ValueError(f"unstable already at {u_min} m/s")
+        hint = (" (the aero ROM is least accurate at low airspeed, where the reduced frequency is high: compare "
+                "--aero full)") if aero == "rom" else ""
+        raise UnstableAtScanStart(f"unstable already at {u_min} m/s{hint}")
     for u in speeds[1:]:
         g = growth_rate(model, u, **kw)
         if g > 0:

@@ -11,14 +11,15 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from panel_rig.analysis.flutter import eigenvalues, find_flutter
+from panel_rig.analysis.flutter import UnstableAtScanStart, eigenvalues, find_flutter
 from panel_rig.analysis.lco import INITIAL_Q, diverged_result, lco_metrics
 from panel_rig.config import PanelConfig, config_from_flat, load_config
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.stepper import BatchStepper, Stepper
 
-#: case status (flutter kinds)
-FOUND, NO_FLUTTER, FAILED = 0, 1, 2
+#: case status (flutter kinds): flutter found, none below 60 m/s, the computation failed, unstable already at the
+#: scan's 1 m/s (a result, not a failure: with the ROM at low damping, its error at high reduced frequency)
+FOUND, NO_FLUTTER, FAILED, UNSTABLE_AT_START = 0, 1, 2, 3
 FLUTTER_VARS = ("flutter_speed_mps", "flutter_frequency_hz", "dominant_mode", "status", "compute_s")
 BIFURCATION_VARS = ("rms_tip_w_over_L", "peak_tip_w_over_L", "dominant_frequency_hz", "steady_after_s", "diverged",
                     "compute_s")
@@ -56,7 +57,9 @@ def flutter_case(values: Mapping[str, Any], aero: str = "rom", formulation: str 
     try:
         fp = find_flutter(AeroelasticModel(cfg), aero=aero, rom_modes=cfg.rom_modes if aero == "rom" else None,
                           formulation=formulation)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # unstable at 1 m/s, singular system, ...
+    except UnstableAtScanStart:
+        fp, out["status"] = None, UNSTABLE_AT_START
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):  # singular system, ...
         fp, out["status"] = None, FAILED
     if fp is not None:
         out.update(flutter_speed_mps=float(fp.speed_mps), flutter_frequency_hz=float(fp.frequency_hz),

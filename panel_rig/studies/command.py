@@ -41,7 +41,7 @@ def run(args: Any) -> int:
         print(f"  sensitivity  {r['key']:28s} {r['measure']} {r['value']:+.3f}")
     for r in summary.get("branches", []):
         print(f"  branch  {r}")
-    print(f"results: {info['store'].path}  (xarray.open_zarr)")
+    print(f"results: {info['store'].path}  (xarray.open_zarr(PATH, consolidated=False))")
     for f in files:
         print(f"plot:    {f}")
     return 0

@@ -62,6 +62,7 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
     u = ds["flutter_speed_mps"].values
     ok = u[np.isfinite(u)]
     out: dict[str, Any] = {"kind": study.kind, "cases": int(u.size), "with_flutter": int(ok.size)}
+    out.update(status_counts(ds))
     if ok.size:
         out.update(flutter_speed_min_mps=float(ok.min()), flutter_speed_max_mps=float(ok.max()),
                    flutter_speed_mean_mps=float(ok.mean()), flutter_speed_sd_mps=float(ok.std(ddof=1)) if ok.size > 1
@@ -69,6 +70,22 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
     if study.kind == "uncertainty":
         out["sensitivity"] = sensitivity_ranking(study, ds)
     return out
+
+
+def status_counts(ds: Any) -> dict[str, int]:
+    """How many cases ended without a flutter speed, and why (the statistics above cover only the others)."""
+    from panel_rig.studies.cases import FAILED, NO_FLUTTER, UNSTABLE_AT_START
+
+    status = ds["status"].values[ds["done"].values.astype(bool)]
+    return {"no_flutter_below_60_mps": int(np.sum(status == NO_FLUTTER)),
+            "unstable_at_1_mps": int(np.sum(status == UNSTABLE_AT_START)), "failed": int(np.sum(status == FAILED))}
+
+
+def _without(summary: dict[str, Any]) -> str:
+    """'; 27 unstable at 1 m/s, ...': the cases a figure leaves out, for its title."""
+    parts = [f"{summary[k]} {label}" for k, label in (("unstable_at_1_mps", "unstable at 1 m/s"),
+             ("no_flutter_below_60_mps", "without flutter below 60 m/s"), ("failed", "failed")) if summary.get(k)]
+    return f"\nnot shown: {', '.join(parts)}" if parts else ""
 
 
 def _axis(levels: list[Any]) -> tuple[np.ndarray, list[str] | None]:
@@ -122,7 +139,8 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
                 a1.text(v, a1.get_ylim()[1] * 0.95, f"P{p}\n{v:.2f}", fontsize=7, ha="center", va="top")
         a1.set_xlabel("flutter speed U_f, m/s")
         a1.set_ylabel("cases")
-        a1.set_title(f"U_f over {u.size} samples (seed {study.options['seed']})")
+        a1.set_title(f"U_f over {u.size} of {summary['cases']} samples (seed {study.options['seed']})"
+                     f"{_without(summary)}", fontsize=9)
         rank = summary.get("sensitivity", [])
         a2.barh([r["key"] for r in rank][::-1], [r["importance"] for r in rank][::-1], color="C0")
         for i, r in enumerate(rank[::-1]):

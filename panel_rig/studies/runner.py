@@ -12,6 +12,7 @@ import contextlib
 import logging
 import sys
 import time
+from concurrent.futures import CancelledError
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -24,7 +25,15 @@ from panel_rig.studies import cases as C
 from panel_rig.studies.spec import Chain, Study
 from panel_rig.studies.store import Store
 
-STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: "none below 60 m/s", C.FAILED: "failed"}
+STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: "none below 60 m/s", C.FAILED: "failed",
+                C.UNSTABLE_AT_START: "unstable at 1 m/s"}
+#: what a lost worker, scheduler or connection raises (CommClosedError and dask's timeouts are OSErrors)
+LOST = (OSError, CancelledError)
+PLUGIN_TRIES = 3
+
+
+class ClusterError(ValueError):
+    """The Dask cluster could not be reached, or was lost during a study (what arrived is stored)."""
 
 
 class WarmUp(WorkerPlugin):
@@ -45,9 +54,16 @@ class WarmUp(WorkerPlugin):
 def connect(workers: int | None = None, scheduler: str | None = None, timeout_s: float = 60.0) -> Iterator[Client]:
     """A client of ``scheduler`` (an address), else of a new LocalCluster with ``workers`` processes."""
     if scheduler:
-        client = Client(scheduler, timeout=f"{timeout_s}s")
         try:
-            client.wait_for_workers(1, timeout=timeout_s)
+            client = Client(scheduler, timeout=f"{timeout_s}s")
+        except OSError as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        try:
+            try:
+                client.wait_for_workers(1, timeout=timeout_s)
+            except OSError:
+                raise ClusterError(f"the Dask scheduler at {scheduler} has no workers (waited {timeout_s:g} s)"
+                                   ) from None
             yield client
         finally:
             client.close()
@@ -65,6 +81,19 @@ def connect(workers: int | None = None, scheduler: str | None = None, timeout_s:
             yield client
     finally:
         cluster.close()
+
+
+def _register_warm_up(client: Client, kind: str) -> None:
+    """Install the warm-up plugin on every worker; a worker that dies meanwhile (its connection closes) is restarted
+    by its nanny and gets the plugin on the next try."""
+    for attempt in range(PLUGIN_TRIES):
+        try:
+            client.register_plugin(WarmUp(kind))
+            return
+        except LOST:
+            if attempt == PLUGIN_TRIES - 1:
+                raise
+            client.wait_for_workers(1, timeout=60)
 
 
 def n_workers(client: Client) -> int:
@@ -127,11 +156,13 @@ def _results(study: Study, value: Any, idx: list[int], state_len: int) -> dict[i
 
 def run_study(study: Study, out_dir: str | Path, workers: int | None = None, scheduler: str | None = None,
               progress: bool = False, flush_s: float = 1.0,
-              on_flush: Callable[[Client, int], None] | None = None) -> dict[str, Any]:
+              on_flush: Callable[[Client, int], None] | None = None, timeout_s: float = 60.0) -> dict[str, Any]:
     """Compute the missing cases of ``study`` into ``out_dir``; returns {store, computed, wall_s, workers, ...}
     (``ready_s``: time until the cluster was up and warm; ``write_s``: time spent writing the store).
 
     ``on_flush(client, n_written)`` is called after each write (tests use it to interrupt or to kill a worker).
+    ``timeout_s``: how long to wait for a ``scheduler`` and its first worker. A cluster that cannot be reached, or
+    is lost on the way, raises :class:`ClusterError` (whatever arrived before is stored).
     """
     t0 = time.perf_counter()
     store = Store.open(out_dir, study, state_len=lambda: _state_len(study))
@@ -142,11 +173,11 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
         from tqdm import tqdm
 
         state_len = store.group["state"].shape[1] if study.kind == "bifurcation" else 0
-        with connect(workers, scheduler) as client, tqdm(
+        with connect(workers, scheduler, timeout_s) as client, tqdm(
                 total=len(study.cases), initial=len(study.cases) - missing.size, disable=not progress,
                 file=sys.stderr, desc=study.kind, unit="case", dynamic_ncols=True) as bar:
             info["workers"] = n_workers(client)
-            client.register_plugin(WarmUp(study.kind))
+            _register_warm_up(client, study.kind)
             info["ready_s"] = time.perf_counter() - t0  # cluster up (or connected) and every worker warm
             if study.kind == "bifurcation":
                 done = store.done_mask()
@@ -177,6 +208,12 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
                         flush()
                         if on_flush:
                             on_flush(client, info["computed"])
+            except LOST as exc:
+                flush()
+                stored = int(store.done_mask().sum())
+                raise ClusterError(f"lost the Dask cluster ({type(exc).__name__}: {exc}); {stored} of "
+                                   f"{len(study.cases)} cases are stored in {store.path}, the same command resumes"
+                                   ) from None
             finally:
                 flush()  # what arrived is complete and valid: keep it, also on Ctrl-C or a failed task
     info["wall_s"] = time.perf_counter() - t0

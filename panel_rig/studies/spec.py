@@ -123,13 +123,25 @@ def _levels(where: str, key: str, raw: Any) -> list[Any]:
         if missing:
             raise _fail(where, f"a range needs {', '.join(RANGE_KEYS)} (missing {missing[0]})")
         num = int(_number(f"{where}.num", raw["num"], positive=True, integer=True))
+        if num > MAX_CASES:
+            raise _fail(f"{where}.num", f"{num} values exceed {MAX_CASES} cases")
         values = np.linspace(_number(f"{where}.start", raw["start"]), _number(f"{where}.stop", raw["stop"]), num)
         out = [float(v) for v in values]
     elif isinstance(raw, list) and raw:
         out = list(raw)
     else:
         raise _fail(where, f"expected a non-empty list or {{start, stop, num}}, got {raw!r}")
-    return [_value(where, key, v) for v in out]
+    values = [_value(where, key, v) for v in out]
+    if len(set(values)) != len(values):
+        raise _fail(where, "lists a value twice (a case would be computed twice)")
+    return values
+
+
+def _count(where: str, n: int) -> int:
+    """``n`` cases, refused before they are built when they are too many."""
+    if n > MAX_CASES:
+        raise _fail(where, f"{n} cases exceed {MAX_CASES}")
+    return n
 
 
 def _samples(where: str, key: str, raw: Any, n: int, rng: np.random.Generator) -> list[Any]:
@@ -222,17 +234,23 @@ def parse_spec(raw: Mapping[str, Any], base_file: Mapping[str, Any]) -> Study:
     study_kw: dict[str, Any] = {}
     if kind == "flutter_map":
         levels = {k: _levels(f"vary.{k}", k, v) for k, v in vary.items()}
+        _count("vary", math.prod(len(v) for v in levels.values()))
         cases = [dict(zip(keys, combo)) for combo in itertools.product(*levels.values())]
         study_kw["levels"] = levels
     elif kind == "uncertainty":
-        n = int(_number("samples", raw.get("samples", 0), positive=True, integer=True))
+        n = _count("samples", int(_number("samples", raw.get("samples", 0), positive=True, integer=True)))
         seed = int(_number("seed", raw.get("seed", 0), integer=True))
+        if seed < 0:
+            raise _fail("seed", f"must be >= 0, got {seed}")
         rng = np.random.default_rng(seed)
         columns = {k: _samples(f"vary.{k}", k, v, n, rng) for k, v in vary.items()}
         cases = [{k: columns[k][i] for k in keys} for i in range(n)]
         options.update(samples=n, seed=seed)
     else:
         cases, study_kw = _bifurcation(raw, vary, keys, options)
+        step_s = max(config_from_flat({**base, **point}).dt_s for point in study_kw["grid"])
+        if options["duration_s"] < step_s:
+            raise _fail("duration_s", f"must be at least one physics step ({step_s:g} s), got {options['duration_s']:g}")
     if len(cases) > MAX_CASES:
         raise _fail("vary", f"{len(cases)} cases exceed {MAX_CASES}")
     for i, c in enumerate(cases):  # every case's whole configuration is valid
@@ -252,8 +270,8 @@ def _bifurcation(raw: Mapping[str, Any], vary: Mapping[str, Any], keys: tuple[st
         _check_keys("airspeeds", a, RANGE_KEYS)
         if any(k not in a for k in RANGE_KEYS):
             raise _fail("airspeeds", f"a range needs {', '.join(RANGE_KEYS)}")
-        speeds = np.linspace(_number("airspeeds.start", a["start"]), _number("airspeeds.stop", a["stop"]),
-                             int(_number("airspeeds.num", a["num"], positive=True, integer=True)))
+        num = _count("airspeeds.num", int(_number("airspeeds.num", a["num"], positive=True, integer=True)))
+        speeds = np.linspace(_number("airspeeds.start", a["start"]), _number("airspeeds.stop", a["stop"]), num)
     elif isinstance(a, list) and a:
         speeds = np.array([_number("airspeeds", u) for u in a], dtype=float)
     else:
@@ -276,8 +294,9 @@ def _bifurcation(raw: Mapping[str, Any], vary: Mapping[str, Any], keys: tuple[st
                    airspeeds=[float(u) for u in speeds], variants=list(variants), direction=direction,
                    duration_s=duration)
     levels = {k: _levels(f"vary.{k}", k, v) for k, v in vary.items()}
-    grid = [dict(zip(keys, combo)) for combo in itertools.product(*levels.values())] if keys else [{}]
     directions = ("up", "down") if direction == "both" else (direction,)
+    _count("vary", math.prod(len(v) for v in levels.values()) * len(variants) * len(directions) * len(speeds))
+    grid = [dict(zip(keys, combo)) for combo in itertools.product(*levels.values())] if keys else [{}]
     cases: list[dict[str, Any]] = []
     chains: list[Chain] = []
     for g, point in enumerate(grid):

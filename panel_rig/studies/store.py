@@ -88,15 +88,25 @@ class Store:
                 raise StoreError(f"{path} holds another study (fingerprint {found}, this spec {study.fingerprint}): "
                                  "use another --out or remove it")
             return cls(path, study)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.is_symlink() or (path.exists() and (not path.is_dir() or any(path.iterdir()))):
+            # creation is one rename, so a crash never leaves a half store here: this is somebody else's
+            raise StoreError(f"{path} exists and is not a panel-rig study store: use another --out or remove it")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"cannot create the output directory {path.parent}: {exc.strerror or exc}") from None
         tmp = path.with_name(path.name + ".creating")
         shutil.rmtree(tmp, ignore_errors=True)
         ds = template(study, state_len() if (study.kind == "bifurcation" and state_len) else 0)
         chunk = min(CHUNK, max(1, len(study.cases)))
         enc = {v: {"chunks": (chunk,) + ds[v].shape[1:]} for v in ds.data_vars}
-        ds.to_zarr(str(tmp), mode="w", encoding=enc, consolidated=False)
-        if path.exists():  # an empty or broken directory left by a crash during creation
-            shutil.rmtree(path)
+        try:
+            ds.to_zarr(str(tmp), mode="w", encoding=enc, consolidated=False)
+        except OSError as exc:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise StoreError(f"cannot write the study store in {path.parent}: {exc.strerror or exc}") from None
+        if path.exists():  # an empty directory (checked above)
+            path.rmdir()
         os.replace(tmp, path)
         return cls(path, study)
 
