@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -134,6 +135,8 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
 
     if args.delay_ms is not None and args.command_age_ms is not None:
         raise UsageError("give --delay-ms or --command-age-ms, not both")
+    if not (np.isfinite(args.rate_hz) and 1.0 <= args.rate_hz <= 1e5):
+        raise UsageError(f"--rate-hz must be in [1, 1e5] Hz, got {args.rate_hz}")
     for name in ("delay_ms", "command_age_ms"):
         v = getattr(args, name)
         if v is not None and not (np.isfinite(v) and 0 <= v <= 100):
@@ -175,7 +178,12 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
                           f"{design.law.derivative_hz:g} Hz, actuator {bw:g} Hz, loop delay {delay_s * 1e3:.2f} ms"))
 
     def table() -> str:
-        speed = "stable up to {:.1f} m/s".format(u_max) if cl.speed_mps is None else f"{cl.speed_mps:8.3f} m/s"
+        if cl.unstable_at_low_speed:  # the loop itself is unstable (too much delay): no flutter speed to quote
+            speed = "unstable already at low speed (the loop delay is too long for this law)"
+        elif cl.speed_mps is None:
+            speed = "stable up to {:.1f} m/s".format(u_max)
+        else:
+            speed = f"{cl.speed_mps:8.3f} m/s"
         return (f"open-loop flutter speed    {design.open_loop_flutter_mps:8.3f} m/s (ROM, continuous)\n"
                 f"closed-loop flutter speed  {speed}"
                 + ("" if cl.speed_mps is None else f" (x{cl.speed_mps / design.open_loop_flutter_mps:.3f}, "
@@ -357,7 +365,6 @@ def cmd_static(args: argparse.Namespace) -> int:
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from panel_rig.analysis.report import build_report
 
@@ -428,14 +435,23 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if not 0 < args.margin < 1:
         raise UsageError("--margin must be in (0, 1)")
     cfg = _config(args)
-    if args.dwell is not None and not args.dwell >= 20.0:
-        raise UsageError("--dwell must be >= 20 s (simulated)")
+    from panel_rig.rig.flutter_run import MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
+
+    if args.dwell is not None and not MIN_DWELL_S <= args.dwell <= MAX_DWELL_S:
+        raise UsageError(f"--dwell must be in [{MIN_DWELL_S:g}, {MAX_DWELL_S:g}] s (simulated), got {args.dwell}")
     if args.start_mps is not None and not args.start_mps > 0.0:
         raise UsageError("--start-mps must be > 0")
     if args.max_points is not None and args.max_points < 1:
         raise UsageError("--max-points must be >= 1")
-    if args.settle is not None and not args.settle >= 0.0:
-        raise UsageError("--settle must be >= 0 s (simulated)")
+    if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
+        raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
+    # where the results go is checked before the test runs, not after (a failed plot lost the whole run)
+    _output_dir(Path(args.bag_dir), "--bag-dir")
+    _output_dir(Path(args.plot).parent, "--plot")
+    if args.rerun:
+        _output_dir(Path(args.rerun).parent, "--rerun")
     try:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
@@ -446,6 +462,14 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         return 1
     _emit(args, out, lambda: format_flutter_test(out))
     return 1 if out["fluttered"] else 0
+
+
+def _output_dir(path: Path, option: str) -> None:
+    """Make an output directory now (parents too), or refuse the command naming the option."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{option}: cannot create the directory {path}: {exc.strerror or exc}") from None
 
 
 def cmd_bag_recover(args: argparse.Namespace) -> int:
@@ -462,7 +486,6 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`.
 
     Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
-    from pathlib import Path
 
     from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
     from panel_rig.recording.series import load_series
@@ -790,6 +813,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # the exit status of a command whose reader went away (128 + SIGPIPE), as a shell reports `yes | head -1`'s yes
+MAX_DOMAIN_ID = 232  # ROS 2 domain ids on Linux (higher ids give ports beyond 65535)
 BROKEN_PIPE_STATUS = 141
 INTERRUPTED_STATUS = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
 
@@ -813,6 +837,11 @@ def _run_subcommand(argv: Sequence[str]) -> int:
         args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)
     except (UsageError, ConfigError, ValueError) as exc:
+        print(f"panel-rig: error: {exc}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        raise
+    except OSError as exc:  # a file that cannot be written or read (a plot in a missing directory, ...): one line
         print(f"panel-rig: error: {exc}", file=sys.stderr)
         return 2
 

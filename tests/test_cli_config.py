@@ -54,6 +54,13 @@ def test_flutter_plot(tmp_path):
     (["lco", "--airspeed", "150"], "Mach 0.3"),
     (["lco-sweep", "--airspeeds", "90:110:10"], "Mach 0.3"),
     (["flutter", "--vg", "10:120:10"], "Mach 0.3"),
+    (["flutter", "--control", "--rate-hz", "0"], "--rate-hz"),  # was a ZeroDivisionError traceback
+    (["flutter", "--control", "--plot", "/proc/no_such_dir/x.png"], "/proc/no_such_dir"),  # any OSError: one line
+    (["flutter-test", "--domain-id", "300"], "--domain-id"),  # was an RTPS error on stdout
+    (["flutter-test", "--settle", "inf"], "--settle"),  # was refused by the node, the reason only in its log
+    (["flutter-test", "--dwell", "1e9"], "--dwell"),
+    # checked before the test runs: a plot that could not be written lost a whole test's results
+    (["flutter-test", "--plot", "/proc/no_such_dir/vg.png"], "--plot"),
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
     out = run(*args)
@@ -97,6 +104,20 @@ def test_config_validation_names_key(tmp_path):
     p.write_text("panel_rig:\n  ros__parameters:\n    aero:\n      wake_relaxation: 1.5\n")
     with pytest.raises(ConfigError, match="aero.wake_relaxation"):
         load_config(p)
+
+
+def test_flutter_control_says_when_the_loop_is_unstable_at_low_speed():
+    out = run("flutter", "--control", "--delay-ms", "20")
+    assert out.returncode == 0, out.stderr
+    line = next(ln for ln in out.stdout.splitlines() if ln.startswith("closed-loop flutter speed"))
+    assert "unstable already at low speed" in line and "stable up to" not in line, line
+
+
+def test_in_process_flutter_test_refuses_a_start_the_rig_refuses(tmp_path):
+    out = run("flutter-test", "--in-process", "--start-mps", "25", "--bag-dir", str(tmp_path / "bags"),
+              "--plot", str(tmp_path / "vg.png"))
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and "25 m/s rejected by the rig" in lines[0], out.stderr
 
 
 def test_the_node_refuses_an_airspeed_limit_beyond_the_incompressible_lattice():

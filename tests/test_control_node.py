@@ -229,6 +229,48 @@ def test_controller_bad_parameters_exit_code_2(ros_env: dict[str, str]) -> None:
 
 
 
+def test_controller_follows_a_restarted_rig_and_takes_live_parameters(ros_env: dict[str, str]) -> None:
+    """In-process: a rig whose clock starts again (a restarted fast node) is served at once; live parameters act
+    or are refused with a reason; bad start values stop the start."""
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.controller import Controller
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=0.4)])
+
+    def reading(t_s: float, z_m: float = 1e-4) -> None:
+        msg = PointStamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(t_s), int(round((t_s % 1.0) * 1e9))
+        msg.point.z = z_m
+        node._on_tip(msg)
+
+    try:
+        for k in range(5):
+            reading(100.0 + 0.002 * k, 1e-4 * k)
+        assert node.sent == 5
+        reading(100.001)  # late (best effort): the answer to a newer reading is out already
+        assert node.sent == 5
+        reading(0.002)  # the rig restarted: its time begins again
+        assert node.sent == 6
+        assert node.set_parameters([Parameter("enabled", value=False)])[0].successful
+        reading(0.004)
+        assert node.sent == 6
+        for name, value in (("gain_nspm2", math.nan), ("max_force_npm", -1.0), ("design_delay_ms", 5.0)):
+            result = node.set_parameters([Parameter(name, value=value)])[0]
+            assert not result.successful and name in result.reason, (name, result.reason)
+        assert node.set_parameters([Parameter("gain_nspm2", value=0.8)])[0].successful
+        assert node.law.gain_nspm2 == 0.8
+        for name, value in (("max_force_npm", -1.0), ("derivative_hz", 0.0), ("design_delay_ms", -3.0)):
+            with pytest.raises(ValueError, match=name):
+                Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=0.4),
+                                                             Parameter(name, value=value)])
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
 def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -> None:
     """Real time: commands echo ROS-clock stamps, the node measures their ages on the ROS clock (reported, not
     asserted against a target: the machine's load decides them; benchmarks/control_latency.py measures them), and

@@ -171,3 +171,23 @@ def test_monitor_message_and_rerun_drawing_of_synthetic_points(tmp_path):
     finally:
         rr.set_strict_mode(was)
     assert (tmp_path / "m.rrd").stat().st_size > 0
+
+
+def test_monitor_identifies_a_dwell_of_exactly_the_minimum_length():
+    """A 20 s dwell (the least --dwell accepts) sampled at 512 Hz spans 20 s - 1/512 s from first to last sample;
+    measured by that span alone it was never long enough, nothing was published and the flutter test hung."""
+    from panel_rig.config import load_config
+    from panel_rig.model.aeroelastic import AeroelasticModel
+    from panel_rig.rig.flutter_run import MIN_DWELL_S, FlutterMonitorSink
+
+    cfg = load_config()
+    published = []
+    sink = FlutterMonitorSink(cfg, AeroelasticModel(cfg), lambda *a, **k: published.append(a), settle_s=1.0,
+                              dwell_s=MIN_DWELL_S)
+    sink.on_command("airspeed_cmd", 5.0, True, 0.0)
+    rng = np.random.default_rng(0)
+    t = np.arange(0, int(512 * (1.0 + MIN_DWELL_S + 1.0))) / 512.0
+    for block in np.array_split(np.arange(t.size), 40):
+        sink.on_block(type("Block", (), {"time_s": t[block], "tip_w_m": 1e-6 * rng.standard_normal(block.size),
+                                         "state": "running"})())
+    assert len(published) == 1 and published[0][1].airspeed_mps == 5.0

@@ -119,3 +119,57 @@ def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys):
     code = main(["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")])
     err = capsys.readouterr().err
     assert code == 1 and "rejected" in err and "exceeds the limit" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env, tmp_path):
+    """SIGTERM (a `kill`, a job scheduler) during a test point: the same clean stop as Ctrl-C. Before, the client
+    died at once and its rig node ran on as an orphan, recording, with the wind on."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from panel_rig.recording.series import load_series
+
+    domain = int(ros_env["ROS_DOMAIN_ID"])
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    watcher = rclpy.create_node("airspeed_watch", namespace="/rig", context=ctx)
+    commands: list[float] = []
+    watcher.create_subscription(Float64, "airspeed_cmd", lambda m: commands.append(m.data),
+                                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(watcher)
+    proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "flutter-test", "--domain-id", str(domain),
+                             "--dwell", "400", "--max-points", "2", "--bag-dir", str(tmp_path),
+                             "--plot", str(tmp_path / "vg.png")], env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not commands and proc.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert commands and commands[0] > 0, "the test never commanded a test point"
+        node_procs = psutil.Process(proc.pid).children(recursive=True)
+        assert node_procs, "no rig node under the flutter test"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        executor.shutdown()
+        watcher.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert proc.returncode == 143, err[-2000:]
+    assert "flutter-test stopped" in err, err[-2000:]
+    gone, alive = psutil.wait_procs(node_procs, timeout=10)
+    assert not alive, f"left running: {alive}"
+    bag = load_series(next(tmp_path.glob("flutter_test_*/rig_*")))
+    assert bag.commands["airspeed_cmd"][-1][1] == 0.0, bag.commands["airspeed_cmd"]  # the wind off, recorded

@@ -24,6 +24,10 @@ from panel_rig.config import PanelConfig
 from panel_rig.rig.rig import RUNNING, Rig, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 
+#: a test point's run-in and dwell (simulated s): the bounds the CLI and the node's flutter_test.* parameters share
+MAX_SETTLE_S = 1e4
+MIN_DWELL_S, MAX_DWELL_S = 20.0, 1e5
+
 
 def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
     """The rig aborted, or the tip exceeded FLUTTER_TIP_FRACTION x L."""
@@ -37,8 +41,9 @@ def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int =
     dt = rig.dt_s * steps_per_sample
 
     def measure(u: float) -> tuple[np.ndarray, float, None, bool]:
-        if not rig.command_airspeed(u).accepted:
-            return np.zeros(0), dt, None, True
+        result = rig.command_airspeed(u)
+        if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
+            raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
         settle = rig.advance_samples([steps_per_sample] * int(round(settings.settle_s / dt)))
         rig.emit_block(settle)  # to the rig's sinks (bag, viewer), as the node publishes its blocks
         blk = rig.advance_samples([steps_per_sample] * int(round(settings.dwell_s / dt)))
@@ -108,7 +113,7 @@ class FlutterMonitorSink:
     per point: meant for fast mode, where simulated time waits for it)."""
 
     def __init__(self, cfg: PanelConfig, model, publish: Callable[..., None], margin: float = 0.1,
-                 settle_s: float = 5.0, min_dwell_s: float = 20.0, dwell_s: float = 200.0) -> None:
+                 settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S, dwell_s: float = 200.0) -> None:
         from panel_rig.analysis.vg import model_flutter_speed
 
         found = model_flutter_speed(model)
@@ -179,7 +184,10 @@ class FlutterMonitorSink:
             return
         t, y = np.concatenate(self._t), np.concatenate(self._y)
         self._t, self._y = [], []
-        if t[-1] - t[0] < self.min_dwell_s:
+        # N samples cover N sample periods: a complete 20 s dwell spans 20 s - 1/512 s from first to last sample
+        # (compared with the span alone, a dwell of exactly min_dwell_s was never identified and the test hung)
+        period = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        if t[-1] - t[0] + period < self.min_dwell_s - 0.5 * period:
             return
         if self.points and self._u <= self.points[-1].airspeed_mps:
             return  # the monitor follows the ascent only

@@ -12,6 +12,8 @@ Parameters: ``gain_nspm2`` (N/m of force per m/s of tip velocity; 0 = design it 
 parameters, ``--params FILE``, for ``design_delay_ms``), ``derivative_hz`` (derivative filter corner),
 ``design_delay_ms`` (loop delay the design assumes), ``actuator_bandwidth_hz`` and ``max_force_npm`` (the rig's
 ``control.*`` values: the command is clipped to the saturation, so the rig never rejects it), ``enabled``.
+``gain_nspm2`` (> 0), ``derivative_hz``, ``max_force_npm`` and ``enabled`` may be changed live (``ros2 param set``);
+the design inputs (``design_delay_ms``, ``actuator_bandwidth_hz``) act only at start, and a live change is refused.
 The law is not gain-scheduled: one gain is stable from rest to its closed-loop flutter speed (checked at design);
 the airspeed is only reported.
 """
@@ -26,8 +28,10 @@ from collections.abc import Sequence
 
 import rclpy
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
@@ -37,6 +41,31 @@ from panel_rig.ros.session import ros_session
 NODE_NAME = "panel_rig_controller"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 MAX_GAP_S = 0.05  # a longer gap between readings restarts the filter (no kick from a stale state)
+# a reading stamped this much before the last one is not late (best-effort readings are milliseconds late) but from
+# a rig whose clock started again (a restarted fast node: its time starts at 0): the controller follows it
+RESTART_BACKSTEP_S = 1.0
+#: the parameters a running controller takes (the others are design inputs, read at start)
+LIVE = ("gain_nspm2", "derivative_hz", "max_force_npm", "enabled")
+
+
+def _positive(name: str, v: object) -> str | None:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    return None if ok else f"{name} must be a finite number > 0, got {v!r}"
+
+
+def parameter_problem(name: str, value: object, at_start: bool) -> str | None:
+    """Why a controller parameter value is refused (None: accepted). ``gain_nspm2`` 0 means "design it", at start
+    only; ``design_delay_ms`` is in [0, 100] ms."""
+    if name == "enabled":
+        return None if isinstance(value, bool) else f"enabled must be true or false, got {value!r}"
+    if name not in LIVE and not at_start:
+        return f"{name} is a design input, used at start only: restart the controller to change it"
+    if name == "gain_nspm2" and at_start and value == 0.0:
+        return None
+    if name == "design_delay_ms":
+        ok = isinstance(value, (int, float)) and math.isfinite(value) and 0 <= value <= 100
+        return None if ok else f"design_delay_ms must be in [0, 100] ms, got {value!r}"
+    return _positive(name, value)
 
 
 class Controller(Node):
@@ -51,6 +80,10 @@ class Controller(Node):
         self.declare_parameter("actuator_bandwidth_hz", defaults.bandwidth_hz)
         self.declare_parameter("max_force_npm", defaults.max_force_npm)
         self.declare_parameter("enabled", True)
+        for name in (*LIVE, "design_delay_ms", "actuator_bandwidth_hz"):
+            problem = parameter_problem(name, self.get_parameter(name).value, at_start=True)
+            if problem:
+                raise ValueError(problem)
         gain = float(self.get_parameter("gain_nspm2").value)
         derivative_hz = float(self.get_parameter("derivative_hz").value)
         if gain <= 0:
@@ -69,6 +102,7 @@ class Controller(Node):
         self.sent = 0
         self.clipped = 0
         self.create_timer(5.0, self._report)
+        self.add_on_set_parameters_callback(self._on_set)
         self.get_logger().info(
             f"controller up: F = -{gain:g} s/(1 + s/(2 pi {derivative_hz:g})) w [N/m per m/s], clip "
             f"+-{self.max_force:g} N/m, {'enabled' if self.enabled else 'disabled'}")
@@ -86,6 +120,23 @@ class Controller(Node):
             f"{design.open_loop_flutter_mps:.2f} -> {design.closed_loop_flutter_mps or math.inf:.2f} m/s")
         return design.law.gain_nspm2
 
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        """Live changes: all checked first, then applied together (the law keeps its filter state)."""
+        for p in params:
+            problem = parameter_problem(p.name, p.value, at_start=False)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
+        new = {p.name: p.value for p in params}
+        if "gain_nspm2" in new or "derivative_hz" in new:
+            self.law = ControlLaw(float(new.get("gain_nspm2", self.law.gain_nspm2)),
+                                  float(new.get("derivative_hz", self.law.derivative_hz)))
+            self.discrete = DiscreteLaw(self.law)
+            self._last_stamp_ns = None  # the new filter starts from the next reading
+        self.max_force = float(new.get("max_force_npm", self.max_force))
+        self.enabled = bool(new.get("enabled", self.enabled))
+        self.get_logger().info(f"parameters changed: {new}")
+        return SetParametersResult(successful=True)
+
     def _on_airspeed(self, msg: Vector3Stamped) -> None:
         self.airspeed_mps = msg.vector.x
 
@@ -94,7 +145,10 @@ class Controller(Node):
         ns = st.sec * 1_000_000_000 + st.nanosec
         last = self._last_stamp_ns
         if last is not None and ns <= last:
-            return  # late or repeated reading (best effort): the answer to a newer one is out already
+            if last - ns < RESTART_BACKSTEP_S * 1e9:
+                return  # late or repeated reading (best effort): the answer to a newer one is out already
+            self.get_logger().info("the rig's time went back: a restarted rig; the filter starts again")
+            last = None
         if last is None or ns - last > MAX_GAP_S * 1e9:
             self.discrete.reset()
         dt = 0.0 if last is None else (ns - last) * 1e-9

@@ -4,8 +4,10 @@ it, and hand back the JSON payload. See :mod:`panel_rig.flutter_cli` for why a s
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
+import signal
 import subprocess
 import sys
 import tempfile
@@ -19,6 +21,12 @@ from panel_rig.processes import stop
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
+TERMINATED_STATUS = 128 + signal.SIGTERM
+
+
+def _terminated(signum: int, frame: Any) -> None:
+    """SIGTERM: leave through the same clean-up as Ctrl-C (wind off, node stopped, bag closed), status 143."""
+    raise SystemExit(TERMINATED_STATUS)
 
 
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
@@ -83,12 +91,18 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     from panel_rig.ros.flutter_client import RigGone
 
+    previous = signal.signal(signal.SIGTERM, _terminated)  # a killed test must not leave its node running
     try:
         res, results, timing = _drive(node, did, settings, startup_s)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
+    except (KeyboardInterrupt, SystemExit):
+        print(f"flutter-test stopped (a test under way commands the tunnel to 0 m/s first); recording and node "
+              f"log in {run_dir}", file=sys.stderr)
+        raise
     finally:
         code = stop(node, STOP_WAIT_S)
+        signal.signal(signal.SIGTERM, previous)
     bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
     res.bag = str(bags[-1]) if bags and bag_dir is not None else None
     out = res.as_dict()
@@ -149,7 +163,13 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
             pt, fluttered, _ = client.test_point(executor, u)
             return pt, fluttered
 
-        res = run_points(next_point, settings)
+        try:
+            res = run_points(next_point, settings)
+        except BaseException:  # Ctrl-C, SIGTERM, a lost node: the wind off first, as an operator stops a test
+            with contextlib.suppress(Exception):
+                client.command(0.0)
+                client.settle_commands(executor)
+            raise
         timing["test_s"] = time.monotonic() - t1
         client.command(0.0)  # the tunnel down, as an operator ends a test
         client.settle_commands(executor)
