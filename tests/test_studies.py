@@ -462,3 +462,42 @@ def test_uncertainty_summary_and_ranking(cluster, base, tmp_path):
     assert [r["key"] for r in rank][0] == "material.youngs_modulus_pa"  # stiffness moves U_f, damping barely
     assert rank[0]["value"] > 0.95 and rank[0]["measure"] == "spearman"
     assert plot(study, ds, summary, tmp_path)[0].stat().st_size > 10_000
+
+
+def test_bifurcation_summary_says_where_a_branch_diverged(base):
+    """A diverging variant (inertia, linear) has no LCO amplitude: its summary row must not read 'nothing happens'."""
+    import xarray as xr
+
+    from panel_rig.studies.report import summarize
+
+    study = parse_spec({"kind": "bifurcation", "airspeeds": [10.0, 12.0, 14.0], "variants": ["inertia"],
+                        "direction": "both", "duration_s": 1.0}, base)
+    u = np.array([c["airspeed_mps"] for c in study.cases])
+    diverged = u >= 12.0
+    ds = xr.Dataset({"airspeed_mps": ("case", u), "diverged": ("case", diverged),
+                     "rms_tip_w_over_L": ("case", np.where(diverged, np.nan, 0.0))})
+    row = summarize(study, ds)["branches"][0]
+    assert row["lco_onset_up_mps"] is None and row["lco_lowest_down_mps"] is None
+    assert row["diverged_up_from_mps"] == 12.0 and row["diverged_down_from_mps"] == 12.0
+
+
+def test_a_flutter_map_with_holes_and_unsorted_levels_still_shows_its_cases(base, tmp_path):
+    """Levels in any order, a column of cases without a flutter speed: every case is drawn (a dot with its value, a
+    red cross without one). Before, contourf on the unsorted, NaN-holed grid left both panels blank."""
+    import matplotlib.image as mpimg
+    import xarray as xr
+
+    from panel_rig.studies.report import plot, summarize
+
+    spec = {**FLUTTER_SPEC, "vary": {"material.youngs_modulus_pa": [7.06e10, 1.0e5],
+                                     "panel.length_m": [0.27, 0.25]}}
+    study = parse_spec(spec, base)
+    fails = np.array([c["material.youngs_modulus_pa"] < 1e6 for c in study.cases])
+    ds = xr.Dataset({"flutter_speed_mps": ("case", np.where(fails, np.nan, [10.4, 11.5, 0, 0])),
+                     "flutter_frequency_hz": ("case", np.where(fails, np.nan, [22.8, 26.1, 0, 0])),
+                     "status": ("case", np.where(fails, 2, 0).astype(np.int8)),
+                     "done": ("case", np.ones(4, bool))})
+    png = plot(study, ds, summarize(study, ds), tmp_path)[0]
+    rgb = (mpimg.imread(png)[..., :3] * 255).astype(int)
+    red = np.all(np.abs(rgb - [214, 39, 40]) < 30, axis=-1).sum()  # matplotlib's C3: the crosses
+    assert red > 20, red

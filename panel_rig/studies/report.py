@@ -51,10 +51,13 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
                 u = ds["airspeed_mps"].values[list(branch)]
                 rms = ds["rms_tip_w_over_L"].values[list(branch)]
                 lco = u[np.nan_to_num(rms) >= LCO_RMS]
+                diverged = u[ds["diverged"].values[list(branch)].astype(bool)]
                 if d == "up":
                     row["lco_onset_up_mps"] = float(lco.min()) if lco.size else None
                 else:
                     row["lco_lowest_down_mps"] = float(lco.min()) if lco.size else None
+                # no LCO is not "nothing happens": a branch that left the physical range has no amplitude at all
+                row[f"diverged_{d}_from_mps"] = float(diverged.min()) if diverged.size else None
             up, down = row.get("lco_onset_up_mps"), row.get("lco_lowest_down_mps")
             row["hysteresis"] = bool(up is not None and down is not None and down < up)
             rows.append(row)
@@ -88,6 +91,32 @@ def _without(summary: dict[str, Any]) -> str:
     return f"\nnot shown: {', '.join(parts)}" if parts else ""
 
 
+def _map(fig: Any, ax: Any, x: np.ndarray, y: np.ndarray, z: np.ndarray, label: str) -> None:
+    """Contours of z (x, y) where there are enough values, and every case as a dot (a cross: no value), so a map
+    with holes or failed cases still shows what was computed; the levels in any order."""
+    ix, iy = np.argsort(x, kind="stable"), np.argsort(y, kind="stable")
+    x, y, z = x[ix], y[iy], z[np.ix_(ix, iy)]
+    ok = np.isfinite(z)
+    values = z[ok]
+    lo, hi = (float(values.min()), float(values.max())) if values.size else (0.0, 1.0)
+    if hi <= lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    from matplotlib.colors import Normalize
+
+    norm = Normalize(lo, hi)
+    if ok.any(axis=1).sum() >= 2 and ok.any(axis=0).sum() >= 2 and values.size >= 4:
+        cs = ax.contourf(x, y, z.T, levels=np.linspace(lo, hi, 15), cmap="viridis", norm=norm)
+        ax.contour(cs, colors="k", linewidths=0.4)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    sc = ax.scatter(X[ok], Y[ok], c=values, cmap="viridis", norm=norm, s=14, edgecolors="k", linewidths=0.4,
+                    clip_on=False)
+    if (~ok).any():
+        ax.scatter(X[~ok], Y[~ok], marker="x", color="C3", s=24, label="no flutter speed (see summary.json)",
+                   clip_on=False)
+        ax.legend(fontsize=7, loc="best")
+    fig.colorbar(sc, ax=ax, label=label)
+
+
 def _axis(levels: list[Any]) -> tuple[np.ndarray, list[str] | None]:
     if all(isinstance(v, (int, float)) for v in levels):
         return np.asarray(levels, dtype=float), None
@@ -111,14 +140,13 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
             grid = ds[var].values.reshape(shape)
             x, xt = _axis(study.levels[keys[0]])
             if len(keys) == 1 or shape[1] == 1:
-                ax.plot(x, grid.reshape(shape[0], -1)[:, 0], "o-")
+                order = np.argsort(x, kind="stable")
+                ax.plot(x[order], grid.reshape(shape[0], -1)[order, 0], "o-")
                 ax.set_ylabel(label)
             else:
                 y, yt = _axis(study.levels[keys[1]])
                 z = grid[(slice(None), slice(None)) + (0,) * (len(keys) - 2)]
-                cs = ax.contourf(x, y, z.T, levels=14, cmap="viridis")
-                ax.contour(cs, colors="k", linewidths=0.4)
-                fig.colorbar(cs, ax=ax, label=label)
+                _map(fig, ax, x, y, z, label)
                 ax.set_ylabel(keys[1])
                 if yt:
                     ax.set_yticks(y, yt)
@@ -161,8 +189,9 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
                 ax.plot(u, rms, ("^-" if d == "up" else "v--"), color=color, label=f"{ch.variant}, {d}",
                         mfc="none" if d == "down" else color)
                 div = ds["diverged"].values[list(branch)].astype(bool)
-                if div.any():  # no amplitude to draw: mark the airspeed at the top edge
-                    ax.plot(u[div], np.full(div.sum(), 0.97 if d == "up" else 0.93), "x", color=color,
+                if div.any():  # no amplitude to draw: mark the airspeed at the top edge, a row per variant and way
+                    row = 2 * study.options["variants"].index(ch.variant) + (d == "down")
+                    ax.plot(u[div], np.full(div.sum(), 0.97 - 0.035 * row), "x", color=color,
                             transform=ax.get_xaxis_transform(), clip_on=False)
             point = study.grid[ch.grid_index]
             title = ", ".join(f"{k} = {v}" for k, v in point.items()) or "bifurcation diagram"
