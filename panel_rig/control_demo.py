@@ -194,9 +194,11 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
             t0 = client.tap(ONSET_TAP_NPM)
             client.wait_sim(WINDOW_S)
             t, w = client.window(t0 + 0.5, t0 + WINDOW_S)
-            g = envelope_growth_rate(t, w) if t.size > 50 else math.nan
+            aborted = client.diag.get("state") != "running"  # the window ends in an abort: no rate to measure
+            g = envelope_growth_rate(t, w) if t.size > 50 and not aborted else math.nan
             rates.append(g)
-            log(f"  U = {u:.3f} m/s ({fac:.3f} x predicted): tip envelope growth rate {g:+.3f} 1/s")
+            log(f"  U = {u:.3f} m/s ({fac:.3f} x predicted): tip envelope growth rate {g:+.3f} 1/s"
+                + (" (the rig aborted in this window: the flutter reached the tip limit)" if aborted else ""))
             if client.diag.get("state") != "running" or (g > 0 and any(x < 0 for x in rates[:-1])):
                 break  # the onset is bracketed: no need to let the flutter grow further
         client.send("airspeed_cmd", 0.0)
@@ -239,6 +241,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
         print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
         return 2
+    for option, path in (("--out", args.out), ("--bag-dir", args.bag_dir)):
+        try:  # before anything runs: a directory that cannot be made was a traceback after the design
+            Path(path).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"panel-rig control-demo: {option}: cannot create the directory {path}: {exc.strerror or exc}",
+                  file=sys.stderr)
+            return 2
     t0 = time.monotonic()
     try:
         s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),

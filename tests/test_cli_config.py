@@ -61,6 +61,7 @@ def test_flutter_plot(tmp_path):
     (["flutter-test", "--dwell", "1e9"], "--dwell"),
     # checked before the test runs: a plot that could not be written lost a whole test's results
     (["flutter-test", "--plot", "/proc/no_such_dir/vg.png"], "--plot"),
+    (["control-demo", "--out", "/proc/no_such_dir/demo"], "--out"),  # was a traceback after the design
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
     out = run(*args)
@@ -125,6 +126,8 @@ def test_the_node_refuses_an_airspeed_limit_beyond_the_incompressible_lattice():
     from panel_rig.ros.params import check_node_params
 
     assert check_node_params({"safety.max_airspeed_mps": MAX_AIRSPEED_MPS}) == []
+    pair = check_node_params({"control.fast_delay_s": 0.2, "control.timeout_s": 0.1})  # each valid alone
+    assert len(pair) == 1 and pair[0].startswith("control.fast_delay_s") and "control.timeout_s" in pair[0], pair
     problems = check_node_params({"safety.max_airspeed_mps": 150.0})
     assert len(problems) == 1 and problems[0].startswith("safety.max_airspeed_mps"), problems
 

@@ -332,6 +332,9 @@ def test_live_parameters(fast_node: subprocess.Popen, client: Client) -> None:
     assert not bad.successful and "publish_rate_hz" in bad.reason
     frozen = set_param("model.variant", "linear")
     assert not frozen.successful
+    # valid alone, not together: a lock-step delay at or above the command timeout refuses every control command
+    pair = set_param("control.fast_delay_s", 1.0)
+    assert not pair.successful and "control.timeout_s" in pair.reason, pair.reason
     assert set_param("safety.max_airspeed_mps", 5.0).successful
     before = int(client.next_diag()["rejected_commands"])
     client.publish("airspeed_cmd", 6.0)

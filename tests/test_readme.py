@@ -31,7 +31,7 @@ NOT_RUN_HERE = {
     ("colcon",): "needs a ROS workspace; tests/test_packaging.py runs `colcon list` on the package",
     ("panel-rig", "study", "--scheduler"): "needs a running Dask scheduler and workers; tests/test_studies.py "
                                            "starts them on 127.0.0.1 and runs the same command against them",
-    ("panel-rig", "control-demo"): "takes ~1.5 min; tests/test_control_node.py runs the same loop (node + controller)",
+    ("panel-rig", "control-demo"): "takes ~40 s; tests/test_control_node.py runs the same loop (node + controller)",
     (".venv/bin/panel-rig", "flutter-test"): "takes ~1 min; tests/test_flutter_test.py runs it with a short dwell and --set",
 }
 #: long-running programs: started, then stopped with SIGINT once they show they work

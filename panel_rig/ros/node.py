@@ -40,7 +40,14 @@ from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
-from panel_rig.ros.params import CONTROL_FIELDS, LIMIT_FIELDS, NODE_PARAMS, check_node_params, parameter_table
+from panel_rig.ros.params import (
+    CONTROL_FIELDS,
+    LIMIT_FIELDS,
+    NODE_PARAMS,
+    check_node_params,
+    combination_problems,
+    parameter_table,
+)
 from panel_rig.ros.session import ros_session
 
 NODE_NAME = "panel_rig"
@@ -260,6 +267,11 @@ class RigNode(Node):
             reason = spec.check(prm.value)
             if reason:
                 return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
+        after = {name: self.get_parameter(name).value for name in ("control.fast_delay_s", "control.timeout_s")}
+        after.update({prm.name: prm.value for prm in params if prm.name in after})
+        problems = combination_problems(after)
+        if problems:
+            return SetParametersResult(successful=False, reason=problems[0])
         return SetParametersResult(successful=True)
 
     def _after_set_parameters(self, params: list[Parameter]) -> None:

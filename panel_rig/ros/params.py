@@ -154,7 +154,16 @@ def check_node_params(values: Mapping[str, Any]) -> list[str]:
         reason = spec.check(value)
         if reason:
             problems.append(f"{name}: {reason}")
-    return problems
+    return problems or combination_problems(values)
+
+
+def combination_problems(values: Mapping[str, Any]) -> list[str]:
+    """Values valid alone but not together (``values``: every parameter's value after the change)."""
+    delay, timeout = values.get("control.fast_delay_s"), values.get("control.timeout_s")
+    if isinstance(delay, (int, float)) and isinstance(timeout, (int, float)) and delay >= timeout:
+        return [f"control.fast_delay_s: {delay:g} s must be below control.timeout_s ({timeout:g} s), else every "
+                "control command arrives too old and is refused"]
+    return []
 
 
 def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None
