@@ -64,6 +64,7 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     rom_modes = args.rom_modes if args.rom_modes is not None else cfg.rom_modes
     if rom_modes < 1:
         raise UsageError("--rom-modes must be >= 1")
+    _flutter_options_apply(args)
     if args.control:
         return _flutter_control(args, cfg, model, rom_modes)
     kw = dict(aero=args.aero, rom_modes=rom_modes if args.aero == "rom" else None,
@@ -116,6 +117,25 @@ def cmd_flutter(args: argparse.Namespace) -> int:
 
     _emit(args, payload, table)
     return 0
+
+
+def _flutter_options_apply(args: argparse.Namespace) -> None:
+    """Refuse options the chosen analysis would silently ignore; fill in the defaults of the others."""
+    if args.control:
+        ignored = [opt for opt, given in (("--aero full", args.aero == "full"), ("--vg", args.vg),
+                                          ("--formulation discrete", args.formulation == "discrete")) if given]
+        if ignored:
+            raise UsageError(f"--control analyses the ROM in continuous time: {', '.join(ignored)} does not apply")
+        args.rate_hz = 500.0 if args.rate_hz is None else args.rate_hz
+    else:
+        ignored = [opt for opt, given in (("--delay-ms", args.delay_ms), ("--command-age-ms", args.command_age_ms),
+                                          ("--rate-hz", args.rate_hz), ("--actuator-bandwidth-hz",
+                                                                        args.actuator_bandwidth_hz))
+                   if given is not None]
+        if ignored:
+            raise UsageError(f"{', '.join(ignored)} only apply with --control")
+    args.aero = args.aero or "full"
+    args.formulation = args.formulation or "discrete"
 
 
 def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom_modes: int) -> int:
@@ -686,10 +706,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("flutter", help="linear flutter boundary (Fig. 3)")
     _common(p)
     p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT, help=linear_variant_help)
-    p.add_argument("--aero", choices=("full", "rom"), default="full")
+    p.add_argument("--aero", choices=("full", "rom"), help="default full (--control: the ROM, always)")
     p.add_argument("--rom-modes", type=int, metavar="N", help="Ra, aerodynamic eigenmodes (default: aero.rom_modes)")
-    p.add_argument("--formulation", choices=("discrete", "continuous"), default="discrete",
-                   help="discrete: Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's model")
+    p.add_argument("--formulation", choices=("discrete", "continuous"),
+                   help="discrete (default): Eqs. (24)/(25) at dt = dx/U as in the paper; continuous: the stepper's "
+                        "model (--control: always)")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 3 (damping vs airspeed, root locus); with "
                    "--control: open- vs closed-loop damping; with --vg the V-g and V-f diagram instead")
     p.add_argument("--vg", metavar="LO:HI:STEP",
@@ -700,7 +721,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
     p.add_argument("--command-age-ms", type=float,
                    help="--control: a measured mean command age, ms (adds half a controller period and a physics step)")
-    p.add_argument("--rate-hz", type=float, default=500.0, help="--control: controller rate, Hz (default 500)")
+    p.add_argument("--rate-hz", type=float, help="--control: controller rate, Hz (default 500)")
     p.add_argument("--actuator-bandwidth-hz", type=float, help="--control: default control.bandwidth_hz")
     p.set_defaults(func=cmd_flutter)
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from panel_rig import jsonio
-from panel_rig.processes import stop
+from panel_rig.processes import module_command, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
@@ -155,14 +155,14 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     node_log, ctl_log = out / f"{run_name}_node.log", out / f"{run_name}_controller.log"
     with open(node_log, "w") as fh:
         node = subprocess.Popen(
-            [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+            [*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
              "--params-file", str(ROOT / "config" / "rig.yaml"), "-p", "tunnel.time_constant_s:=0.3",
              "-p", f"control.fast_delay_s:={delay_ms * 1e-3}", "-p", "fast_max_realtime_factor:=5.0",
              "-p", "diagnostics_rate_hz:=5.0", "-p", "record:=true", "-p", f"bag_dir:={bag_dir}",
              "-p", f"rerun:=save:{rrd}"], env=env, stdout=fh, stderr=subprocess.STDOUT)
     with open(ctl_log, "w") as fh:
         ctl = subprocess.Popen(
-            [sys.executable, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
+            [*module_command("panel_rig.ros.controller"), "--ros-args", "-r", "__ns:=/rig",
              "-p", f"gain_nspm2:={design.law.gain_nspm2}", "-p", f"derivative_hz:={design.law.derivative_hz}"],
             env=env, stdout=fh, stderr=subprocess.STDOUT)
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]

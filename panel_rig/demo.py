@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panel_rig import jsonio
-from panel_rig.processes import stop
+from panel_rig.processes import module_command, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     before = {p.name for p in bag_dir.glob("rig_*")}
     t0 = time.monotonic()
     node_log = out / f"{run}_node.log"
-    node_cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params",
+    node_cmd = [*module_command("panel_rig.ros.node"), "--fast", "--params",
                 str(ROOT / "config" / "tang_dowell_2002.yaml"), "--ros-args", "-r", "__ns:=/rig",
                 "--params-file", str(ROOT / "config" / "rig.yaml"),
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
@@ -74,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with open(node_log, "w") as log:
         node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        op = subprocess.run([sys.executable, "-m", "panel_rig.ros.operator", "--profile", args.profile, "--namespace", "/rig",
+        op = subprocess.run([*module_command("panel_rig.ros.operator"), "--profile", args.profile, "--namespace", "/rig",
                              "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
     finally:
         node_code = stop(node, NODE_STOP_TIMEOUT_S)

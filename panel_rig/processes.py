@@ -5,9 +5,17 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+
+
+def module_command(module: str, *args: str) -> list[str]:
+    """``python -P -m module args``: a child program of this install. ``-P`` keeps the working directory off
+    sys.path, so a ``panel_rig/`` directory where the user stands (another checkout) is never what the child runs
+    while this process runs the installed one."""
+    return [sys.executable, "-P", "-m", module, *args]
 
 
 @contextmanager

@@ -62,6 +62,9 @@ def test_flutter_plot(tmp_path):
     # checked before the test runs: a plot that could not be written lost a whole test's results
     (["flutter-test", "--plot", "/proc/no_such_dir/vg.png"], "--plot"),
     (["control-demo", "--out", "/proc/no_such_dir/demo"], "--out"),  # was a traceback after the design
+    (["flutter", "--control", "--vg", "5:10:1"], "--vg"),  # options the analysis would silently ignore
+    (["flutter", "--control", "--aero", "full"], "--aero full"),
+    (["flutter", "--delay-ms", "5"], "only apply with --control"),
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
     out = run(*args)
@@ -201,3 +204,18 @@ def test_a_late_interrupt_of_a_handed_on_program_is_status_130(monkeypatch, caps
     monkeypatch.setitem(cli.PROGRAMS, program, (interrupted, *cli.PROGRAMS[program][1:]))
     assert cli.main([program, "--profile", "x.yaml"]) == cli.INTERRUPTED_STATUS == 130
     assert capsys.readouterr().err == "panel-rig: interrupted\n"
+
+
+def test_child_programs_run_this_install_not_a_checkout_in_the_working_directory(tmp_path):
+    """The demo, control demo and flutter test start the node as `python -m panel_rig...`; run from a directory
+    holding another panel_rig/ (a second checkout), `-m` imported that one while the parent ran this install."""
+    from panel_rig.processes import module_command
+
+    (tmp_path / "panel_rig").mkdir()
+    (tmp_path / "panel_rig" / "__init__.py").write_text("raise SystemExit('the working directory panel_rig ran')\n")
+    out = subprocess.run([*module_command("panel_rig.jsonio")], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    naive = subprocess.run([sys.executable, "-m", "panel_rig.jsonio"], cwd=tmp_path, capture_output=True, text=True,
+                           timeout=60)
+    assert "the working directory panel_rig ran" in naive.stderr  # what -P prevents
