@@ -195,6 +195,24 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """yaml's safe loader, except that a key given twice in one mapping is an error (the safe loader keeps the last
+    silently: a spec listing ``panel.thickness_m`` twice in ``vary`` lost the first list without a word)."""
+
+
+def _unique_mapping(loader: _StrictLoader, node: yaml.MappingNode) -> dict[Any, Any]:
+    seen: set[Any] = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"key {key!r} given twice", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=True)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def load_yaml_file(path: str | Path, what: str) -> Any:
     """The YAML document of a file; ConfigError with one line ('<what> not found: PATH', or 'PATH: malformed YAML
     (line N; the parser's complaint)') when it cannot be read."""
@@ -202,7 +220,7 @@ def load_yaml_file(path: str | Path, what: str) -> Any:
     if not p.is_file():
         raise ConfigError(f"{what} not found: {p}")
     try:
-        return yaml.safe_load(p.read_text())
+        return yaml.load(p.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
         detail = "; ".join(x for x in (f"line {mark.line + 1}" if mark is not None else "", problem or "") if x)

@@ -100,6 +100,20 @@ def test_malformed_yaml_is_one_line_with_its_place(tmp_path, args):
     assert f"{bad}: malformed YAML (line 3; expected ',' or ']'" in out.stderr
 
 
+@pytest.mark.parametrize("args", [("modes", "--params"), ("study", "--spec")])
+def test_a_key_given_twice_is_an_error_not_the_last_one_wins(tmp_path, args):
+    """YAML's safe loader keeps the last of two equal keys without a word: a spec varying panel.thickness_m twice
+    ran only the second list, a parameters file setting a value twice used the second."""
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("kind: flutter_map\nvary:\n  panel.thickness_m: [0.0003]\n  panel.thickness_m: [0.0004]\n"
+                     if args[0] == "study" else
+                     "panel_rig:\n  ros__parameters:\n    panel:\n      length_m: 0.27\n      length_m: 0.30\n")
+    out = run(*args, str(twice))
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert f"{twice}: malformed YAML (line " in lines[0] and "given twice" in lines[0], lines
+
+
 def test_config_validation_names_key(tmp_path):
     p = tmp_path / "p.yaml"
     p.write_text("panel_rig:\n  ros__parameters:\n    air:\n      density_kgpm3: -1.0\n")

@@ -501,3 +501,10 @@ def test_a_flutter_map_with_holes_and_unsorted_levels_still_shows_its_cases(base
     rgb = (mpimg.imread(png)[..., :3] * 255).astype(int)
     red = np.all(np.abs(rgb - [214, 39, 40]) < 30, axis=-1).sum()  # matplotlib's C3: the crosses
     assert red > 20, red
+
+
+def test_batch_size_does_not_make_another_study(base):
+    """`batch` tunes the tasks, not the cases: the same output directory resumes (it was refused as another study)."""
+    assert parse_spec({**FLUTTER_SPEC, "batch": 2}, base).fingerprint == parse_spec(FLUTTER_SPEC, base).fingerprint
+    other = {**FLUTTER_SPEC, "set": {"aero.rom_modes": 10}}
+    assert parse_spec(other, base).fingerprint != parse_spec(FLUTTER_SPEC, base).fingerprint

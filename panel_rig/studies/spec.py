@@ -188,9 +188,15 @@ def _choice(where: str, value: Any, choices: tuple[str, ...]) -> str:
     return value
 
 
+#: spec keys that tune how a study runs, not what it computes: a change of them resumes the same study
+EXECUTION_KEYS = ("batch",)
+
+
 def fingerprint(spec: Mapping[str, Any], base: Mapping[str, Any]) -> str:
-    """Identity of a study: the spec as read and the base parameters (resume refuses a different study)."""
-    text = json.dumps({"spec": spec, "base": base}, sort_keys=True, default=str)
+    """Identity of a study: the spec as read (less its EXECUTION_KEYS) and the base parameters (resume refuses a
+    different study)."""
+    what = {k: v for k, v in spec.items() if k not in EXECUTION_KEYS}
+    text = json.dumps({"spec": what, "base": base}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
