@@ -508,3 +508,41 @@ def test_batch_size_does_not_make_another_study(base):
     assert parse_spec({**FLUTTER_SPEC, "batch": 2}, base).fingerprint == parse_spec(FLUTTER_SPEC, base).fingerprint
     other = {**FLUTTER_SPEC, "set": {"aero.rom_modes": 10}}
     assert parse_spec(other, base).fingerprint != parse_spec(FLUTTER_SPEC, base).fingerprint
+
+
+def test_ctrl_c_at_a_terminal_stops_quietly_and_says_how_to_resume(tmp_path):
+    """Ctrl-C at a terminal signals the whole process group, the LocalCluster's worker processes too: each printed
+    a KeyboardInterrupt traceback. Now the client alone stops the study: status 130, one line saying what is stored
+    and that the same command resumes, no traceback."""
+    import time
+
+    import zarr
+
+    spec = write_spec(tmp_path / "map.yaml", {**FLUTTER_SPEC, "vary": {
+        "panel.thickness_m": {"start": 2.5e-4, "stop": 5.0e-4, "num": 40},
+        "panel.length_m": {"start": 0.22, "stop": 0.30, "num": 10}}})
+    out = tmp_path / "out"
+    p = subprocess.Popen([*CLI, "study", "--spec", str(spec), "--workers", "2", "--out", str(out), "--json"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 150
+
+        def stored() -> int:
+            try:
+                return int(np.sum(zarr.open_group(str(out / "results.zarr"), mode="r")["done"][:]))
+            except Exception:  # noqa: BLE001 (not created yet)
+                return 0
+
+        while stored() == 0 and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)  # polling a condition (the first results on disk), not waiting for one to happen
+        assert p.poll() is None and stored() > 0, "the study ended, or stored nothing, before it could be interrupted"
+        os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: every process of the group
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    lines = err.strip().splitlines()
+    assert p.returncode == 130, err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert len(lines) == 1 and "cases are stored in" in lines[0] and "the same command resumes" in lines[0], lines

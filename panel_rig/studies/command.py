@@ -9,6 +9,21 @@ from typing import Any
 from panel_rig import jsonio
 from panel_rig.config import ConfigError
 
+INTERRUPTED_STATUS = 130  # 128 + SIGINT
+
+
+def _stored(out: Path) -> int:
+    """Cases done in the store under ``out`` (0 if there is none yet)."""
+    import numpy as np
+    import zarr
+
+    from panel_rig.studies.store import STORE_NAME
+
+    try:
+        return int(np.sum(zarr.open_group(str(out / STORE_NAME), mode="r")["done"][:]))
+    except Exception:  # noqa: BLE001 (no store yet, or one being created)
+        return 0
+
 
 def run(args: Any) -> int:
     from panel_rig.studies.spec import load_spec
@@ -21,8 +36,15 @@ def run(args: Any) -> int:
     from panel_rig.studies.runner import case_records, run_study
     out = Path(args.out) if args.out else Path("out") / "study" / Path(args.spec).stem
     show = not args.json and sys.stderr.isatty()
-    info = run_study(study, out, workers=args.workers or (None if args.scheduler else 2), scheduler=args.scheduler,
-                     progress=show)
+    try:
+        info = run_study(study, out, workers=args.workers or (None if args.scheduler else 2),
+                         scheduler=args.scheduler, progress=show)
+    except KeyboardInterrupt:  # what arrived is stored (run_study flushes on the way out): say so, and how to go on
+        from panel_rig.studies.store import STORE_NAME
+
+        print(f"panel-rig study: interrupted; {_stored(out)} of {len(study.cases)} cases are stored in "
+              f"{out / STORE_NAME}: the same command resumes", file=sys.stderr)
+        return INTERRUPTED_STATUS
     ds = info["store"].load()
     summary = summarize(study, ds)
     (out / "summary.json").write_text(jsonio.dumps(summary, indent=1) + "\n")
@@ -32,8 +54,11 @@ def run(args: Any) -> int:
                           "computed": info["computed"], "out": str(out), "summary": summary,
                           "plots": [str(f) for f in files]}))
         return 0
-    print(f"{study.kind}: {len(study.cases)} cases ({info['computed']} computed now, on {info['workers']} workers) "
-          f"in {info['wall_s']:.1f} s")
+    if info["workers"]:
+        print(f"{study.kind}: {len(study.cases)} cases ({info['computed']} computed now, on {info['workers']} "
+              f"workers) in {info['wall_s']:.1f} s")
+    else:
+        print(f"{study.kind}: {len(study.cases)} cases, all already in {info['store'].path} (nothing to compute)")
     for k, v in summary.items():
         if k not in ("kind", "branches", "sensitivity"):
             print(f"  {k:24s} {v}")

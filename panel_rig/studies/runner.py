@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import signal
 import sys
+import threading
 import time
 from concurrent.futures import CancelledError
 from pathlib import Path
@@ -42,11 +44,17 @@ class WarmUp(WorkerPlugin):
 
     idempotent = True
 
-    def __init__(self, kind: str) -> None:
+    def __init__(self, kind: str, own_cluster: bool = False) -> None:
         self.kind = kind
+        self.own_cluster = own_cluster
         self.name = f"panel-rig-warm-up-{kind}"
 
     def setup(self, worker: Any) -> None:
+        # Ctrl-C at a terminal reaches the whole process group: the study's own LocalCluster workers leave the stop
+        # to the client (it keeps what arrived and closes the cluster); each printed a KeyboardInterrupt traceback.
+        # Workers of a cluster the user started keep their Ctrl-C.
+        if self.own_cluster and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         C.warm_up(self.kind)
 
 
@@ -83,12 +91,12 @@ def connect(workers: int | None = None, scheduler: str | None = None, timeout_s:
         cluster.close()
 
 
-def _register_warm_up(client: Client, kind: str) -> None:
+def _register_warm_up(client: Client, kind: str, own_cluster: bool = False) -> None:
     """Install the warm-up plugin on every worker; a worker that dies meanwhile (its connection closes) is restarted
     by its nanny and gets the plugin on the next try."""
     for attempt in range(PLUGIN_TRIES):
         try:
-            client.register_plugin(WarmUp(kind))
+            client.register_plugin(WarmUp(kind, own_cluster))
             return
         except LOST:
             if attempt == PLUGIN_TRIES - 1:
@@ -177,7 +185,7 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
                 total=len(study.cases), initial=len(study.cases) - missing.size, disable=not progress,
                 file=sys.stderr, desc=study.kind, unit="case", dynamic_ncols=True) as bar:
             info["workers"] = n_workers(client)
-            _register_warm_up(client, study.kind)
+            _register_warm_up(client, study.kind, own_cluster=scheduler is None)
             info["ready_s"] = time.perf_counter() - t0  # cluster up (or connected) and every worker warm
             if study.kind == "bifurcation":
                 done = store.done_mask()
