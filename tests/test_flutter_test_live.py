@@ -132,9 +132,9 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     import psutil
 
     rclpy = pytest.importorskip("rclpy")
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from std_msgs.msg import Float64
 
     from panel_rig.recording.series import load_series
 
@@ -143,7 +143,14 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     rclpy.init(context=ctx, domain_id=domain)
     watcher = rclpy.create_node("airspeed_watch", namespace="/rig", context=ctx)
     commands: list[float] = []
-    watcher.create_subscription(Float64, "airspeed_cmd", lambda m: commands.append(m.data),
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:  # the node's set-point (a second airspeed_cmd subscriber
+        for st in msg.status:  # would make the test refuse to run: it cannot tell it from another rig)
+            values = {kv.key: kv.value for kv in st.values}
+            if st.name == "panel_rig: tunnel" and float(values.get("airspeed_setpoint_mps", "0")) > 0:
+                commands.append(float(values["airspeed_setpoint_mps"]))
+
+    watcher.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics,
                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(watcher)
@@ -173,3 +180,24 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     assert not alive, f"left running: {alive}"
     bag = load_series(next(tmp_path.glob("flutter_test_*/rig_*")))
     assert bag.commands["airspeed_cmd"][-1][1] == 0.0, bag.commands["airspeed_cmd"]  # the wind off, recorded
+
+
+def test_flutter_test_refuses_a_domain_where_another_rig_takes_its_commands(ros_env, tmp_path):
+    """`--domain-id` of a domain where somebody's rig node runs: the test's commands went to that node too, and the
+    test hung. Now it stops before the first command, naming the reason."""
+    import subprocess
+    import sys
+
+    from panel_rig.processes import module_command, stop
+
+    other = subprocess.Popen([*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
+                              "-p", "fast_max_realtime_factor:=1.0"], env=ros_env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    try:
+        out = subprocess.run([sys.executable, "-m", "panel_rig.cli", "flutter-test", "--domain-id",
+                              ros_env["ROS_DOMAIN_ID"], "--max-points", "1", "--dwell", "20", "--bag-dir",
+                              str(tmp_path), "--plot", str(tmp_path / "vg.png")], env=ros_env, capture_output=True,
+                             text=True, timeout=300)
+    finally:
+        assert stop(other, 60) == 0
+    assert out.returncode == 1 and "choose another --domain-id" in out.stderr, out.stderr[-2000:]

@@ -42,7 +42,7 @@ class FlutterTestClient(Node):
         self.results: list[dict[str, Any]] = []
         self.diagnostics: dict[str, str] = {}
         self._last_heard = time.monotonic()
-        self.create_subscription(DiagnosticArray, TOPIC, self._on_monitor, MONITOR_QOS)
+        self.sub_monitor = self.create_subscription(DiagnosticArray, TOPIC, self._on_monitor, MONITOR_QOS)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, COMMAND_QOS)
 
     def _on_monitor(self, msg: DiagnosticArray) -> None:
@@ -69,14 +69,19 @@ class FlutterTestClient(Node):
             raise RigGone(f"nothing from the rig node for {self.timeout_s:g} s (wall)")
 
     def wait_for_rig(self, executor: Any, startup_s: float = 180.0) -> None:
-        """Until the node publishes diagnostics and subscribes to ``airspeed_cmd`` (model build and JIT load can
-        take a minute on a cold cache: ``startup_s`` of wall time)."""
+        """Until the node publishes diagnostics and its flutter monitor and subscribes to ``airspeed_cmd`` (model
+        build and JIT load can take a minute on a cold cache: ``startup_s`` of wall time). A second rig node in the
+        namespace (somebody's own, on the same ROS domain) would take the test's commands: refused."""
         deadline = time.monotonic() + startup_s
-        while not self.diagnostics or self.pub_airspeed.get_subscription_count() == 0:
+        while (not self.diagnostics or self.pub_airspeed.get_subscription_count() == 0
+               or self.sub_monitor.get_publisher_count() == 0):
             self._last_heard = time.monotonic()  # start-up is bounded by the deadline, not the silence timeout
             self._spin(executor, 0.1)
             if time.monotonic() > deadline:
                 raise RigGone(f"the rig node did not come up within {startup_s:g} s (wall)")
+        if self.pub_airspeed.get_subscription_count() > 1:
+            raise RigGone(f"{self.pub_airspeed.get_subscription_count()} nodes take {self.pub_airspeed.topic_name} on "
+                          "this ROS domain (another rig?): the test would drive them all; choose another --domain-id")
 
     def command(self, airspeed_mps: float) -> None:
         self.pub_airspeed.publish(Float64(data=float(airspeed_mps)))
