@@ -128,6 +128,8 @@ def test_the_store_never_replaces_what_it_did_not_make(base, tmp_path, occupant)
     empty = tmp_path / "empty"
     (empty / STORE_NAME).mkdir(parents=True)  # an empty directory is taken
     assert Store.open(empty, study).missing().size == len(study.cases)
+    with pytest.raises(StoreError, match="is a Zarr store itself"):  # --out DIR/results.zarr nested a second one
+        Store.open(empty / STORE_NAME, study)
 
 
 def test_an_unreachable_scheduler_is_one_clear_error(base, tmp_path):

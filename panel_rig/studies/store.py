@@ -82,6 +82,8 @@ class Store:
     def open(cls, out_dir: str | Path, study: Study, state_len: Callable[[], int] | None = None) -> "Store":
         """Open DIR/results.zarr for this study, creating it if absent; refuse a store of another study."""
         path = Path(out_dir) / STORE_NAME
+        if (Path(out_dir) / "zarr.json").is_file():  # --out DIR/results.zarr: a store inside the store
+            raise StoreError(f"{out_dir} is a Zarr store itself: give the study's directory (its parent) as --out")
         if (path / "zarr.json").is_file():
             found = zarr.open_group(str(path), mode="r").attrs.get("fingerprint")
             if found != study.fingerprint:
