@@ -548,3 +548,29 @@ def test_ctrl_c_at_a_terminal_stops_quietly_and_says_how_to_resume(tmp_path):
     assert p.returncode == 130, err[-3000:]
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
     assert len(lines) == 1 and "cases are stored in" in lines[0] and "the same command resumes" in lines[0], lines
+
+
+def test_a_worker_lost_while_the_warm_up_is_installed_is_retried():
+    """A worker killed while its plugin was being registered closed the connection (CommClosedError) and ended the
+    whole study with a traceback; the nanny restarts the worker, so the registration is tried again."""
+    from distributed.comm.core import CommClosedError
+
+    from panel_rig.studies.runner import PLUGIN_TRIES, _register_warm_up
+
+    class Client:
+        def __init__(self, failures: int) -> None:
+            self.failures, self.calls, self.waits = failures, 0, 0
+
+        def register_plugin(self, plugin) -> None:
+            self.calls += 1
+            if self.calls <= self.failures:
+                raise CommClosedError("in <TCP (closed) ConnectionPool.register_worker_plugin>: Stream is closed")
+
+        def wait_for_workers(self, n: int, timeout: float) -> None:
+            self.waits += 1
+
+    flaky = Client(failures=1)
+    _register_warm_up(flaky, "flutter_map")
+    assert (flaky.calls, flaky.waits) == (2, 1)
+    with pytest.raises(CommClosedError):
+        _register_warm_up(Client(failures=PLUGIN_TRIES), "flutter_map")
