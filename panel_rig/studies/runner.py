@@ -82,8 +82,10 @@ def connect(workers: int | None = None, scheduler: str | None = None, timeout_s:
     # worker; and the statistical profiler samples the running task every 10 ms, of no use without a dashboard.
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), "MALLOC_TRIM_THRESHOLD_": 32 << 20}
     with dask.config.set({"distributed.worker.profile.enabled": False, "distributed.nanny.pre-spawn-environ": environ}):
+        # the scheduler's HTTP server starts whatever the dashboard setting; None puts it on 8787, and with another
+        # cluster on the machine that printed "Port 8787 is already in use" on the study's stderr: any free port
         cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=logging.CRITICAL)
+                               dashboard_address=":0", silence_logs=logging.CRITICAL)
     try:
         with Client(cluster) as client:
             yield client
