@@ -41,6 +41,7 @@ class FlutterTestClient(Node):
         self.pub_airspeed = self.create_publisher(Float64, "airspeed_cmd", COMMAND_QOS)
         self.results: list[dict[str, Any]] = []
         self.diagnostics: dict[str, str] = {}
+        self.diagnostics_received = 0  # tunnel diagnostics messages so far
         self._last_heard = time.monotonic()
         self.sub_monitor = self.create_subscription(DiagnosticArray, TOPIC, self._on_monitor, MONITOR_QOS)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, COMMAND_QOS)
@@ -54,6 +55,7 @@ class FlutterTestClient(Node):
         for st in msg.status:
             if st.name == "panel_rig: tunnel":
                 self.diagnostics = {kv.key: kv.value for kv in st.values}
+                self.diagnostics_received += 1
                 self._last_heard = time.monotonic()
 
     @property
@@ -109,6 +111,20 @@ class FlutterTestClient(Node):
             return int(self.diagnostics.get("rejected_commands", "0"))
         except ValueError:
             return 0
+
+    def confirm_setpoint(self, executor: Any, airspeed_mps: float, wall_s: float = 5.0) -> bool:
+        """Serve callbacks until the node's diagnostics show this set-point (at most ``wall_s``): a stopping test
+        knows its last command arrived before the node is stopped, whatever the machine's load."""
+        end, seen = time.monotonic() + wall_s, self.diagnostics_received  # a report from after the command
+        while time.monotonic() < end:
+            try:
+                shown = float(self.diagnostics.get("airspeed_setpoint_mps", "nan"))
+            except ValueError:
+                shown = math.nan
+            if self.diagnostics_received > seen and abs(shown - airspeed_mps) < 1e-3:
+                return True
+            executor.spin_once(timeout_sec=0.05)
+        return False
 
     def settle_commands(self, executor: Any, wall_s: float = 0.3) -> None:
         """Serve callbacks for a moment so a last command goes out before the client stops."""

@@ -168,7 +168,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
         except BaseException:  # Ctrl-C, SIGTERM, a lost node: the wind off first, as an operator stops a test
             with contextlib.suppress(Exception):
                 client.command(0.0)
-                client.settle_commands(executor)
+                client.confirm_setpoint(executor, 0.0)  # seen by the node (and recorded) before it is stopped
             raise
         timing["test_s"] = time.monotonic() - t1
         client.command(0.0)  # the tunnel down, as an operator ends a test
