@@ -187,17 +187,36 @@ def test_flutter_test_refuses_a_domain_where_another_rig_takes_its_commands(ros_
     test hung. Now it stops before the first command, naming the reason."""
     import subprocess
     import sys
+    import time
+
+    rclpy = pytest.importorskip("rclpy")
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
 
     from panel_rig.processes import module_command, stop
 
     other = subprocess.Popen([*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
                               "-p", "fast_max_realtime_factor:=1.0"], env=ros_env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    watcher = rclpy.create_node("rig_watch", context=ctx)
+    heard: list[int] = []
+    watcher.create_subscription(DiagnosticArray, "/diagnostics", lambda m: heard.append(1), 10)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(watcher)
     try:
+        deadline = time.monotonic() + 120  # the other rig is up (and discoverable) before the test starts
+        while not heard and other.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert heard, "the other rig node did not come up"
         out = subprocess.run([sys.executable, "-m", "panel_rig.cli", "flutter-test", "--domain-id",
                               ros_env["ROS_DOMAIN_ID"], "--max-points", "1", "--dwell", "20", "--bag-dir",
                               str(tmp_path), "--plot", str(tmp_path / "vg.png")], env=ros_env, capture_output=True,
                              text=True, timeout=300)
     finally:
-        assert stop(other, 60) == 0
+        executor.shutdown()
+        watcher.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop(other, 60)
     assert out.returncode == 1 and "choose another --domain-id" in out.stderr, out.stderr[-2000:]
