@@ -24,7 +24,34 @@ class UsageError(Exception):
 
 
 def _config(args: argparse.Namespace) -> PanelConfig:
+    """The run's configuration; also refuses a ``--plot`` that is not a .png file name, before any computation
+    (matplotlib appended .png to other names, and the JSON named a file that was never written)."""
+    plot = getattr(args, "plot", None)
+    if plot is not None and Path(plot).suffix.lower() != ".png":
+        raise UsageError(f"--plot must name a .png file, got {plot!r}")
     return load_config(args.params, args.set or ())
+
+
+MAX_DURATION_S = 3600.0
+MAX_RANGE_POINTS = 10_000
+
+
+def _duration(value: float, option: str, cfg: PanelConfig, least_s: float = 0.0) -> float:
+    """Simulated seconds: at least one physics step (and ``least_s``), at most MAX_DURATION_S."""
+    low = max(cfg.dt_s, least_s)
+    if not (np.isfinite(value) and low <= value <= MAX_DURATION_S):
+        raise UsageError(f"{option} must be in [{low:g}, {MAX_DURATION_S:g}] s (simulated), got {value}")
+    return value
+
+
+def _points(a: float, b: float, step: float, option: str) -> np.ndarray:
+    """a, a + step, ... up to b (inclusive to half a step), at most MAX_RANGE_POINTS of them."""
+    if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(step)) or step <= 0 or b < a:
+        raise UsageError(f"{option} needs finite bounds, STOP >= START and STEP > 0, got {a:g}:{b:g}:{step:g}")
+    n = int(np.ceil((b + 0.5 * step - a) / step))  # what np.arange(a, b + step / 2, step) makes, before making it
+    if n > MAX_RANGE_POINTS:
+        raise UsageError(f"{option} gives {n} points, more than {MAX_RANGE_POINTS}: use a larger step")
+    return np.arange(a, b + 0.5 * step, step)
 
 
 def _emit(args: argparse.Namespace, payload: dict[str, Any], table: Callable[[], str]) -> None:
@@ -245,8 +272,7 @@ def cmd_lco(args: argparse.Namespace) -> int:
     from panel_rig.analysis.lco import run_lco
 
     cfg = _config(args)
-    if not (0 < args.duration <= 3600):
-        raise UsageError(f"--duration must be in (0, 3600] s, got {args.duration}")
+    _duration(args.duration, "--duration", cfg)
     if args.turbulence_intensity is not None or args.seed is not None:
         # the tunnel: the panel starts at rest and only the turbulence disturbs it (the same Rig as the node)
         from panel_rig.analysis.lco import diverged_result, lco_metrics
@@ -285,9 +311,7 @@ def _range(text: str, option: str = "--airspeeds") -> np.ndarray:
         a, b, c = (float(x) for x in text.split(":"))
     except ValueError:
         raise UsageError(f"{option} expects START:STOP:STEP, got {text!r}") from None
-    if c <= 0 or b < a:
-        raise UsageError(f"{option} needs STOP >= START and STEP > 0, got {text!r}")
-    return np.array([_airspeed(u) for u in np.arange(a, b + 0.5 * c, c)])
+    return np.array([_airspeed(u) for u in _points(a, b, c, option)])
 
 
 def cmd_lco_sweep(args: argparse.Namespace) -> int:
@@ -295,6 +319,7 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     speeds = _range(args.airspeeds)
+    _duration(args.duration, "--duration", cfg)
     res = lco_sweep(cfg, speeds, args.duration, args.variant, args.aero, args.scheme, progress=Progress("sweep"))
     payload = {"airspeed_mps": speeds, "results": [r.as_dict() for r in res]}
     if args.plot:
@@ -303,7 +328,8 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
         payload["plot"] = str(plot_series(args.plot, speeds, [
             (np.array([r.rms_tip_w_over_L for r in res]), "RMS tip w/L"),
             (np.array([r.dominant_frequency_hz for r in res]) / 50, "frequency / 50 Hz")],
-            "airspeed, m/s", "RMS w/L ; f/50", "LCO vs airspeed (Fig. 8)"))
+            "airspeed, m/s", "RMS w/L ; f/50", "LCO vs airspeed (Fig. 8)",
+            marks=(np.array([r.airspeed_mps for r in res if r.diverged]), "diverged (|tip w/L| over the bound)")))
     _emit(args, payload, lambda: "U (m/s)   RMS w/L    f (Hz)  diverged\n" + "\n".join(
         f"{r.airspeed_mps:7.2f}  {r.rms_tip_w_over_L:8.4f}  {r.dominant_frequency_hz:8.2f}  {r.diverged}" for r in res))
     return 0
@@ -311,13 +337,22 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
 
 def cmd_forced(args: argparse.Namespace) -> int:
     from panel_rig.analysis.forced import forced_sweep
+    from panel_rig.model.stepper import DivergenceError
 
     cfg = _config(args)
     f0, f1 = args.band
     if not (0 < f0 <= f1 <= 500) or not (0 < args.step <= f1 - f0 + 1e-9 or f0 == f1):
-        raise UsageError(f"--band needs 0 < F0 <= F1 <= 500 Hz and 0 < --step, got {args.band} {args.step}")
-    r = forced_sweep(cfg, f0, f1, args.step, args.variant, args.f0, args.dwell, scheme=args.scheme,
-                     progress=Progress("forced"))
+        raise UsageError(f"--band needs 0 < F0 <= F1 <= 500 Hz and 0 < --step <= F1 - F0, got {args.band} "
+                         f"{args.step}")
+    _points(f0, f1, args.step, "--band/--step")
+    _duration(args.dwell, "--dwell", cfg, least_s=1.0)  # the amplitude is read over the last second of each dwell
+    if not (np.isfinite(args.f0) and args.f0 >= 0):
+        raise UsageError(f"--f0 must be a finite force amplitude >= 0 N/m, got {args.f0}")
+    try:
+        r = forced_sweep(cfg, f0, f1, args.step, args.variant, args.f0, args.dwell, scheme=args.scheme,
+                         progress=Progress("forced"))
+    except DivergenceError as exc:  # a response beyond the model's range: the force is too large for this band
+        raise UsageError(f"{exc}: lower --f0 (a forced response needs a bounded panel)") from None
     payload = {"frequency_hz": r.frequency_hz, "amplitude_tip_w_over_L": r.amplitude_tip_w_over_L,
                "peak_frequency_hz": r.peak_frequency_hz}
     if args.plot:
@@ -389,6 +424,9 @@ def cmd_paper(args: argparse.Namespace) -> int:
     from panel_rig.analysis.report import build_report
 
     cfg = _config(args)
+    if not str(args.out).strip():
+        raise UsageError("--out must name a directory, got an empty string")
+    _duration(args.sweep_duration, "--sweep-duration", cfg)
     out = Path(args.out)
     result = build_report(cfg, out, log=lambda s: print(f"panel-rig paper: {s}", file=sys.stderr),
                           sweep_s=args.sweep_duration)

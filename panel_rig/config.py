@@ -100,7 +100,7 @@ class _Spec:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
         if self.kind is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"{key}: expected a number, got {value!r}")
+                raise ConfigError(f"{key}: expected a number, got {value!r}{_text_number_hint(value)}")
             value = float(value)
             if not math.isfinite(value):
                 raise ConfigError(f"{key}: must be finite, got {value!r}")
@@ -243,8 +243,17 @@ def read_params_file(path: str | Path) -> dict[str, Any]:
     return flatten(section)
 
 
+def _text_number_hint(value: Any) -> str:
+    """For a YAML 1.1 text that is a number to anyone else ('5e-6'): how to write it so that YAML reads a number."""
+    try:
+        return f" (YAML 1.1 reads it as text: write {float(value)!r})" if isinstance(value, str) else ""
+    except ValueError:
+        return ""
+
+
 def parse_override(text: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` with VALUE parsed as a YAML scalar."""
+    """``KEY=VALUE`` with VALUE parsed as a YAML scalar; a number YAML 1.1 leaves as text (``5e-6``, ``1e3``: no
+    dot, or no exponent sign) is the number (on the command line there is no ROS parser to disagree)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"--set expects KEY=VALUE, got {text!r}")
@@ -252,6 +261,11 @@ def parse_override(text: str) -> tuple[str, Any]:
         value = yaml.safe_load(raw)
     except yaml.YAMLError:
         raise ConfigError(f"{key.strip()}: cannot parse value {raw!r}") from None
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
     return key.strip(), value
 
 

@@ -65,6 +65,17 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--control", "--vg", "5:10:1"], "--vg"),  # options the analysis would silently ignore
     (["flutter", "--control", "--aero", "full"], "--aero full"),
     (["flutter", "--delay-ms", "5"], "only apply with --control"),
+    # durations, dwells and ranges checked before the work (tracebacks, numpy messages or TiB allocations before)
+    (["lco-sweep", "--airspeeds", "10:11:1", "--duration", "inf"], "--duration"),
+    (["lco", "--airspeed", "11", "--duration", "1e-9"], "--duration"),
+    (["forced", "--band", "23", "24", "--step", "1", "--dwell", "0.5"], "--dwell"),
+    (["forced", "--band", "23", "24", "--step", "1", "--f0", "nan"], "--f0"),
+    (["forced", "--band", "4", "4.4", "--step", "0.2", "--dwell", "5", "--f0", "2"], "lower --f0"),  # diverges
+    (["lco-sweep", "--airspeeds", "0:100:1e-12"], "points"),
+    (["flutter", "--vg", "0:100:1e-9"], "points"),
+    (["lco", "--airspeed", "11", "--duration", "1", "--plot", "out/x"], ".png"),  # the JSON named a file not written
+    (["paper", "--out", ""], "--out"),
+    (["paper", "--out", "/proc/never_written", "--sweep-duration", "inf"], "--sweep-duration"),
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
     out = run(*args)
@@ -233,3 +244,18 @@ def test_child_programs_run_this_install_not_a_checkout_in_the_working_directory
     naive = subprocess.run([sys.executable, "-m", "panel_rig.jsonio"], cwd=tmp_path, capture_output=True, text=True,
                            timeout=60)
     assert "the working directory panel_rig ran" in naive.stderr  # what -P prevents
+
+
+def test_set_takes_numbers_yaml_1_1_leaves_as_text():
+    """`--set sensor.tip_noise_m=5e-6` (the README's own spelling of the default) was refused: YAML 1.1 reads 5e-6
+    as text. A parameters file keeps YAML's reading (ROS reads it so), with a hint how to write it."""
+    out = run("modes", "--json", "--set", "sensor.tip_noise_m=5e-6", "--set", "air.density_kgpm3=1e0")
+    assert out.returncode == 0, out.stderr
+    assert load_config(None, ["sensor.tip_noise_m=5e-6"]).sensor_tip_noise_m == 5e-6
+
+
+def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():
+    out = run("lco", "--airspeed", "20", "--duration", "3", "--seed", "2", "--json")
+    assert out.returncode == 0, out.stderr
+    said = float(out.stderr.split("rig aborted at t = ")[1].split(" s")[0])
+    assert json.loads(out.stdout)["diverged_at_s"] == pytest.approx(said, abs=1e-3) and said < 1.0

@@ -53,13 +53,19 @@ def plot_flutter_roots(curves: dict[str, tuple[np.ndarray, list[np.ndarray]]], p
 
 
 def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, str]], xlabel: str,
-                ylabel: str, title: str = "", paper: Sequence[tuple[np.ndarray, np.ndarray, str]] = ()) -> Path:
-    """Generic line plot with optional paper points."""
+                ylabel: str, title: str = "", paper: Sequence[tuple[np.ndarray, np.ndarray, str]] = (),
+                marks: tuple[np.ndarray, str] | None = None) -> Path:
+    """Generic line plot with optional paper points; ``marks`` (x values, label): crosses at the bottom edge for
+    points without a value (e.g. the diverged airspeeds of a sweep), so the axis spans them too."""
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for y, label in ys:
         ax.plot(x, y, label=label, lw=1.2)
     for px, py, label in paper:
         ax.plot(px, py, "ks", mfc="none", label=label)
+    if marks is not None and len(marks[0]):
+        ax.plot(marks[0], np.full(len(marks[0]), 0.03), "x", color="C3", label=marks[1],
+                transform=ax.get_xaxis_transform(), clip_on=False)
+        ax.set_xlim(min(np.nanmin(x), np.min(marks[0])) - 0.5, max(np.nanmax(x), np.max(marks[0])) + 0.5)
     ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)

@@ -49,5 +49,10 @@ def run_tunnel(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant
         if progress:
             progress(done / n_total)
     tip = np.concatenate(tips) if tips else np.zeros(0)
-    aborted = None if rig.state == RUNNING else float(rig.time_s)
-    return TunnelRun(rig.dt_s, tip, np.concatenate(meas) if meas else np.zeros(0), aborted)
+    measured = np.concatenate(meas) if meas else np.zeros(0)
+    aborted = None
+    if rig.state != RUNNING:  # the abort's own time, not the chunk's end; the series stop there too (the block
+        aborted = float(rig.abort_time_s)  # runs on to its end after an abort)
+        keep = int(round(aborted / rig.dt_s))
+        tip, measured = tip[:keep], measured[:keep]
+    return TunnelRun(rig.dt_s, tip, measured, aborted)
