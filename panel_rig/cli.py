@@ -98,7 +98,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
               formulation=args.formulation)
     fp = find_flutter(model, **kw)
     if fp is None:
-        payload = {"flutter_speed_mps": None, "flutter_frequency_hz": None, "dominant_mode": None}
+        payload = {"flutter_speed_mps": None, "flutter_frequency_hz": None, "dominant_mode": None,
+                   "mode_shares": None}
     else:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}

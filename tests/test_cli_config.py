@@ -259,3 +259,11 @@ def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():
     assert out.returncode == 0, out.stderr
     said = float(out.stderr.split("rig aborted at t = ")[1].split(" s")[0])
     assert json.loads(out.stdout)["diverged_at_s"] == pytest.approx(said, abs=1e-3) and said < 1.0
+
+
+def test_a_panel_that_does_not_move_has_no_frequency():
+    """A quiet tunnel (no turbulence) leaves the panel at rest: the JSON said 0.0 Hz, a frequency nobody measured."""
+    out = run("lco", "--airspeed", "11", "--duration", "2", "--turbulence-intensity", "0", "--seed", "1", "--json")
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["rms_tip_w_over_L"] == 0.0 and res["dominant_frequency_hz"] is None, res

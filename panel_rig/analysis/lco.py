@@ -68,8 +68,9 @@ def lco_metrics(tip: np.ndarray, dt_s: float, airspeed_mps: float) -> LCOResult:
     if onset is not None:
         n_meas = min(n_meas, tip.size - int(round(onset / dt_s)))
     last = tip[-max(n_meas, 16):]
-    return LCOResult(airspeed_mps, rms(last), float(np.max(np.abs(last))), dominant_frequency_hz(last, dt_s),
-                     onset, False)
+    # a signal that does not move has no frequency (it reported 0.0 Hz, or a bin of round-off)
+    freq = dominant_frequency_hz(last, dt_s) if np.ptp(last) > 0 else float("nan")
+    return LCOResult(airspeed_mps, rms(last), float(np.max(np.abs(last))), freq, onset, False)
 
 
 def lco_sweep(cfg: PanelConfig, airspeeds_mps: np.ndarray, duration_s: float, variant: str = "full",
