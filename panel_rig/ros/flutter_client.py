@@ -67,13 +67,15 @@ class FlutterTestClient(Node):
         executor.spin_once(timeout_sec=timeout_s)
         if not self.alive():
             raise RigGone("the rig node exited")
+        self._check_alone()
         if time.monotonic() - self._last_heard > self.timeout_s:
             raise RigGone(f"nothing from the rig node for {self.timeout_s:g} s (wall)")
 
     def wait_for_rig(self, executor: Any, startup_s: float = 180.0) -> None:
         """Until the node publishes diagnostics and its flutter monitor and subscribes to ``airspeed_cmd`` (model
         build and JIT load can take a minute on a cold cache: ``startup_s`` of wall time). A second rig node in the
-        namespace (somebody's own, on the same ROS domain) would take the test's commands: refused."""
+        namespace (somebody's own, on the same ROS domain) would take the test's commands: refused (:meth:`_check_alone`,
+        at every spin of the test)."""
         deadline = time.monotonic() + startup_s
         while (not self.diagnostics or self.pub_airspeed.get_subscription_count() == 0
                or self.sub_monitor.get_publisher_count() == 0):
@@ -81,9 +83,14 @@ class FlutterTestClient(Node):
             self._spin(executor, 0.1)
             if time.monotonic() > deadline:
                 raise RigGone(f"the rig node did not come up within {startup_s:g} s (wall)")
-        if self.pub_airspeed.get_subscription_count() > 1:
-            raise RigGone(f"{self.pub_airspeed.get_subscription_count()} nodes take {self.pub_airspeed.topic_name} on "
-                          "this ROS domain (another rig?): the test would drive them all; choose another --domain-id")
+
+    def _check_alone(self) -> None:
+        """A second rig node in the namespace (somebody's own, on the same ROS domain) takes the test's commands
+        too: refused, whenever discovery shows it (at start, or as soon as its endpoint is seen)."""
+        n = self.pub_airspeed.get_subscription_count()
+        if n > 1:
+            raise RigGone(f"{n} nodes take {self.pub_airspeed.topic_name} on this ROS domain (another rig?): the test "
+                          "would drive them all; choose another --domain-id")
 
     def command(self, airspeed_mps: float) -> None:
         self.pub_airspeed.publish(Float64(data=float(airspeed_mps)))
