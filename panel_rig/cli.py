@@ -17,6 +17,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
+from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS
 
 
 class UsageError(Exception):
@@ -872,10 +873,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# the exit status of a command whose reader went away (128 + SIGPIPE), as a shell reports `yes | head -1`'s yes
 MAX_DOMAIN_ID = 232  # ROS 2 domain ids on Linux (higher ids give ports beyond 65535)
-BROKEN_PIPE_STATUS = 141
-INTERRUPTED_STATUS = 130  # 128 + SIGINT, what a shell reports for a program stopped by Ctrl-C
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -10,6 +10,12 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+#: exit statuses as a shell reports a program ended by a signal (128 + the signal's number), one home for every
+#: program of the package: Ctrl-C (SIGINT), SIGTERM, and a reader that left the pipe (SIGPIPE)
+INTERRUPTED_STATUS = 128 + signal.SIGINT
+TERMINATED_STATUS = 128 + signal.SIGTERM
+BROKEN_PIPE_STATUS = 128 + signal.SIGPIPE
+
 
 def module_command(module: str, *args: str) -> list[str]:
     """``python -P -m module args``: a child program of this install. ``-P`` keeps the working directory off

@@ -17,11 +17,10 @@ from typing import Any
 
 import yaml
 
-from panel_rig.processes import module_command, stop
+from panel_rig.processes import TERMINATED_STATUS, module_command, stop
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
-TERMINATED_STATUS = 128 + signal.SIGTERM
 
 
 def _terminated(signum: int, frame: Any) -> None:

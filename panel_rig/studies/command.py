@@ -8,8 +8,7 @@ from typing import Any
 
 from panel_rig import jsonio
 from panel_rig.config import ConfigError
-
-INTERRUPTED_STATUS = 130  # 128 + SIGINT
+from panel_rig.processes import INTERRUPTED_STATUS
 
 
 def _stored(out: Path) -> int:
