@@ -36,10 +36,10 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "panel-rig = panel_rig.cli:main",
-            "rig_node = panel_rig.ros.node:main",
-            "rig_operator = panel_rig.ros.operator:main",
-            "rig_controller = panel_rig.ros.controller:main",
+            "panel-rig = panel_rig.entry:panel_rig",
+            "rig_node = panel_rig.entry:rig_node",
+            "rig_operator = panel_rig.entry:rig_operator",
+            "rig_controller = panel_rig.entry:rig_controller",
         ],
     },
 )

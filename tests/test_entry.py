@@ -1,0 +1,40 @@
+"""Console entry points: a Ctrl-C while the program is still being imported ends with one line and status 130."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib.metadata import entry_points
+
+from panel_rig import entry
+from panel_rig.processes import INTERRUPTED_STATUS
+
+SLOW_MODULE = "import os, signal\nos.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while this module loads\n"
+
+
+def test_ctrl_c_during_the_import_is_one_line_and_status_130(tmp_path):
+    (tmp_path / "slow_program.py").write_text(SLOW_MODULE + "def main():\n    return 0\n")
+    code = (f"import sys; sys.path.insert(0, {str(tmp_path)!r}); from panel_rig.entry import launch; "
+            "sys.exit(launch('slow_program', 'slow'))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == INTERRUPTED_STATUS
+    assert proc.stderr == "slow: interrupted\n"
+
+
+def test_launch_returns_the_program_s_status(tmp_path, monkeypatch):
+    (tmp_path / "done_program.py").write_text("def main():\n    return 3\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert entry.launch("done_program", "done") == 3
+
+
+def test_installed_commands_go_through_the_entry_module():
+    scripts = {ep.name: ep.value for ep in entry_points(group="console_scripts")
+               if ep.name in ("panel-rig", "rig_node", "rig_operator", "rig_controller")}
+    assert scripts == {
+        "panel-rig": "panel_rig.entry:panel_rig",
+        "rig_node": "panel_rig.entry:rig_node",
+        "rig_operator": "panel_rig.entry:rig_operator",
+        "rig_controller": "panel_rig.entry:rig_controller",
+    }
+    for value in scripts.values():
+        assert callable(getattr(entry, value.split(":")[1]))
