@@ -163,6 +163,8 @@ def _flutter_options_apply(args: argparse.Namespace) -> None:
                    if given is not None]
         if ignored:
             raise UsageError(f"{', '.join(ignored)} only apply with --control")
+        if args.aero != "rom" and args.rom_modes is not None and not (args.vg or args.plot):
+            raise UsageError("--rom-modes sets the ROM: give it with --aero rom, --vg, --plot or --control")
     args.aero = args.aero or "full"
     args.formulation = args.formulation or "discrete"
 

@@ -49,6 +49,10 @@ def test_flutter_plot(tmp_path):
     (["modes", "--set", "aero.elements=0"], "aero.elements"),
     (["modes", "--params", "/no/such/file.yaml"], "not found"),
     (["flutter", "--rom-modes", "0", "--aero", "rom"], "rom-modes"),
+    # more modes than the lattice has gave the full model, reported as "rom_modes": 500
+    (["flutter", "--rom-modes", "500", "--aero", "rom"], "1 to 60 aerodynamic eigenmodes"),
+    (["lco", "--airspeed", "5", "--duration", "0.01", "--set", "aero.rom_modes=500"], "1 to 60 aerodynamic eigenmodes"),
+    (["flutter", "--rom-modes", "5"], "--aero rom"),  # the full lattice's analysis ignored it
     (["modes", "--set", "structure.modes=two"], "structure.modes"),
     # the lattice is incompressible: no airspeed beyond Mach ~0.3 (a 200 m/s run gave a 781 Hz "LCO")
     (["lco", "--airspeed", "150"], "Mach 0.3"),

@@ -112,6 +112,9 @@ class AeroROM:
 def build_rom(lat: VortexLattice, n_modes: int | None, modes: AeroModes | None = None) -> AeroROM:
     """ROM with the first n_modes aerodynamic eigenmodes (None: every dynamic mode, the full model)."""
     modes = modes if modes is not None else aero_eigenmodes(lat)
+    if n_modes is not None and not 1 <= n_modes <= len(modes.z):
+        raise ValueError(f"the ROM takes 1 to {len(modes.z)} aerodynamic eigenmodes (all {len(modes.z)}: the full "
+                         f"model), not {n_modes} (aero.rom_modes, --rom-modes)")
     idx = select_modes(modes, len(modes.z) if n_modes is None else n_modes)
     groups: list[list[int]] = []
     cols_x, rows_y = [], []
