@@ -112,6 +112,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
         # the stepper's continuous-time model with the ROM (the aero the rig runs), whatever --aero says
         vg = vg_diagram(model, _range(args.vg, "--vg"), aero="rom", rom_modes=rom_modes)
         payload["vg"] = vg.as_json()
+        # the poles' model, which "aero" / "formulation" above (the flutter search's) need not be
+        payload["vg_model"] = {"aero": "rom", "rom_modes": rom_modes, "formulation": "continuous"}
         if args.plot:
             uf = model_flutter_speed(model, aero="rom", rom_modes=rom_modes)
             payload["plot"] = str(plot_vg(vg, args.plot, uf[0] if uf else None, f"(ROM Ra={rom_modes})"))

@@ -98,6 +98,7 @@ def test_cli_vg_json_and_plot(tmp_path, vg):
     assert out.returncode == 0, out.stderr
     d = json.loads(out.stdout)
     assert [p["airspeed_mps"] for p in d["vg"]] == [6.0, 8.0, 10.0]
+    assert d["vg_model"] == {"aero": "rom", "rom_modes": 12, "formulation": "continuous"}  # not the search's
     for p in d["vg"]:
         assert len(p["modes"]) == 3 and set(p["modes"][0]) == {"frequency_hz", "damping_ratio"}
         k = int(round(p["airspeed_mps"] / 0.5))
