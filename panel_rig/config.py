@@ -215,12 +215,18 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _u
 
 def load_yaml_file(path: str | Path, what: str) -> Any:
     """The YAML document of a file; ConfigError with one line ('<what> not found: PATH', or 'PATH: malformed YAML
-    (line N; the parser's complaint)') when it cannot be read."""
+    (line N; the parser's complaint)', not UTF-8 text, unreadable) when it cannot be read."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{what} not found: {p}")
     try:
-        return yaml.load(p.read_text(), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start}); is it the {what}?") from None
+    except OSError as exc:
+        raise ConfigError(f"{what} {p} cannot be read: {exc.strerror or exc}") from None
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
         detail = "; ".join(x for x in (f"line {mark.line + 1}" if mark is not None else "", problem or "") if x)

@@ -115,6 +115,19 @@ def test_malformed_yaml_is_one_line_with_its_place(tmp_path, args):
     assert f"{bad}: malformed YAML (line 3; expected ',' or ']'" in out.stderr
 
 
+@pytest.mark.parametrize("args", [("modes", "--params"), ("run", "--params"), ("operate", "--profile"),
+                                  ("study", "--spec")])
+def test_a_file_that_is_not_utf8_text_is_one_line_naming_it(tmp_path, args):
+    """A binary file given as parameters, profile or spec: the node's start was a UnicodeDecodeError traceback,
+    the others one line that did not name the file."""
+    binary = tmp_path / "p.yaml"
+    binary.write_bytes(b"\xff\xfe\x00panel_rig")
+    out = run(*args, str(binary))
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert f"{binary}: not a UTF-8 text file (byte 0)" in lines[0], lines
+
+
 @pytest.mark.parametrize("args", [("modes", "--params"), ("study", "--spec")])
 def test_a_key_given_twice_is_an_error_not_the_last_one_wins(tmp_path, args):
     """YAML's safe loader keeps the last of two equal keys without a word: a spec varying panel.thickness_m twice
