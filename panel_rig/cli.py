@@ -520,7 +520,8 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
                                dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
-                               domain_id=args.domain_id, max_points=args.max_points)
+                               domain_id=args.domain_id, max_points=args.max_points,
+                               progress=lambda line: print(line, file=sys.stderr, flush=True))
     except RuntimeError as exc:  # the live node failed to start or stopped answering (its log is named)
         print(f"panel-rig flutter-test: {exc}", file=sys.stderr)
         return 1

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -73,21 +73,34 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
                      bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                      params: dict[str, Any] | None = None, dwell_s: float | None = None,
                      settle_s: float | None = None, in_process: bool = False,
-                     domain_id: int | None = None, max_points: int | None = None) -> dict[str, Any]:
-    """Run the procedure (live node by default, see the module docstring); returns the JSON payload."""
+                     domain_id: int | None = None, max_points: int | None = None,
+                     progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run the procedure (live node by default, see the module docstring); returns the JSON payload.
+    ``progress``: called with :func:`point_line` after each test point."""
     if in_process:
         return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s,
-                              max_points)
+                              max_points, progress)
     from panel_rig.ros.flutter_live import run_live
 
     return run_live(cfg, variant, margin, start_mps, bag_dir, plot, rerun, dwell_s, settle_s, domain_id,
-                    max_points=max_points)
+                    max_points=max_points, progress=progress)
+
+
+def point_line(index: int, point: Any, decision: Any) -> str:
+    """One line per test point while a test runs: the identified flutter mode (95 % interval) and what comes
+    next, so a test stopped half-way has shown what it found."""
+    e = point.flutter
+    found = "flutter mode not identified" if e is None else (
+        "{:.3f} Hz, zeta {:.4f} [{:.4f}, {:.4f}]".format(e.frequency_hz, e.damping_ratio, *e.damping_ci()))
+    nxt = "stop" if decision.stop else f"next {decision.next_airspeed_mps:.3f} m/s"
+    return f"point {index}: {point.airspeed_mps:.3f} m/s: {found}; {nxt} ({decision.reason})"
 
 
 def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                    bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                    params: dict[str, Any] | None = None, dwell_s: float | None = None,
-                   settle_s: float | None = None, max_points: int | None = None) -> dict[str, Any]:
+                   settle_s: float | None = None, max_points: int | None = None,
+                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
     from panel_rig.rig.flutter_run import pretest_plan, rig_measure
@@ -124,6 +137,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
     def on_point(point: Any, decision: Any) -> None:
         history.append((rig.time_s, point, decision))
+        if progress is not None:
+            progress(point_line(len(history), point, decision))
         if writer is not None:
             writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
                          messages.stamp_ns(rig.time_s), qos="reliable")

@@ -119,8 +119,15 @@ def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
     code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "30", "--json",
                  "--bag-dir",
                  str(tmp_path), "--plot", str(tmp_path / "vg.png")])
-    out = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
     assert code == 0 and out["fluttered"] is False
+    # progress on stderr while the test runs: a line per point with what it found and what comes next
+    lines = [ln for ln in captured.err.splitlines() if ln.startswith("point ")]
+    assert len(lines) == len(out["test_points"]) >= 2
+    for k, (line, p) in enumerate(zip(lines, out["test_points"]), 1):
+        assert line.startswith(f"point {k}: {p['airspeed_mps']:.3f} m/s: {p['frequency_hz']:.3f} Hz, zeta "), line
+    assert lines[-1].endswith(f"stop ({out['stop_reason']})")
     for key in ("test_points", "predicted_flutter_speed_mps", "predicted_flutter_speed_ci_mps", "max_airspeed_mps",
                 "fluttered", "bag"):
         assert key in out

@@ -6,6 +6,7 @@ were tried first: the damping estimates (+-0.004) did not fall monotonically and
 model decided whether a prediction existed."""
 
 import json
+import sys
 
 import pytest
 
@@ -21,17 +22,18 @@ def live_run(tmp_path_factory):
     import contextlib
     import io
 
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
+    buf, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
         code = main(["flutter-test", "--set", "panel.thickness_m=0.0004", "--dwell", str(DWELL_S), "--start-mps",
                      str(START_MPS), "--max-points", "3", "--json", "--bag-dir", str(tmp), "--plot", str(tmp / "vg.png")])
-    return code, json.loads(buf.getvalue()), tmp
+    print(err.getvalue(), file=sys.stderr)  # shown by pytest on a failure
+    return code, json.loads(buf.getvalue()), tmp, err.getvalue()
 
 
 def test_live_flutter_test_json_and_lockstep(live_run):
     """The issue's JSON keys; the node was driven live (its own model, its own bag, its exit code 0); the client's
     prediction equals the node monitor's own (the same points rebuilt bit for bit, the same seeded bootstrap)."""
-    code, out, tmp = live_run
+    code, out, tmp, _ = live_run
     assert code == 0, out
     for key in ("test_points", "predicted_flutter_speed_mps", "predicted_flutter_speed_ci_mps", "max_airspeed_mps",
                 "fluttered", "bag"):
@@ -52,6 +54,14 @@ def test_live_flutter_test_json_and_lockstep(live_run):
     assert (tmp / "vg.png").stat().st_size > 0
 
 
+def test_live_flutter_test_shows_each_point_as_it_is_identified(live_run):
+    """A line per test point on stderr while the test runs (a stopped test has shown what it found)."""
+    _, out, _, err = live_run
+    lines = [ln for ln in err.splitlines() if ln.startswith("point ")]
+    assert [ln.split(":")[1].strip() for ln in lines] == [f"{p['airspeed_mps']:.3f} m/s" for p in out["test_points"]]
+    assert lines[-1].endswith(f"stop ({out['stop_reason']})")
+
+
 def test_live_dwell_is_in_simulated_time_and_the_node_holds_for_the_client(live_run):
     """From the recorded monitor messages and commands: each result comes one block after settle + dwell of
     simulated time from its command, and the next command arrives at the simulated instant of the previous result
@@ -59,7 +69,7 @@ def test_live_dwell_is_in_simulated_time_and_the_node_holds_for_the_client(live_
     from panel_rig.recording.reader import read_bag
     from panel_rig.ros.flutter_monitor import parse_monitor
 
-    _, out, _ = live_run
+    _, out, _, _ = live_run
     results, cmds = [], []
     for topic, _, stamp_ns, msg in read_bag(out["bag"], topics=["/rig/flutter_monitor", "/rig/airspeed_cmd"]):
         if topic.endswith("flutter_monitor"):
@@ -82,7 +92,7 @@ def test_analyze_replays_the_live_identification(live_run):
     in the bag) and identifies the same points."""
     from panel_rig.cli import analyze_bag
 
-    _, out, _ = live_run
+    _, out, _, _ = live_run
     ft = analyze_bag(out["bag"])["flutter_test"]
     assert [p["airspeed_mps"] for p in ft["test_points"]] == [p["airspeed_mps"] for p in out["test_points"]]
     for live, again in zip(out["test_points"], ft["test_points"]):

@@ -13,7 +13,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -61,9 +61,11 @@ def private_domain_id() -> int:
 def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
              bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
              dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
-             max_points: int | None = None, startup_s: float = 180.0) -> dict[str, Any]:
+             max_points: int | None = None, startup_s: float = 180.0,
+             progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on a freshly started live node; returns the JSON payload (the issue's keys, plus
-    ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison)."""
+    ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison). ``progress``:
+    called with a line after each test point (:func:`panel_rig.flutter_cli.point_line`)."""
     t0 = time.monotonic()
     did = private_domain_id() if domain_id is None else int(domain_id)
     base = Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir())
@@ -91,13 +93,22 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     from panel_rig.ros.flutter_client import RigGone
 
     previous = signal.signal(signal.SIGTERM, _terminated)  # a killed test must not leave its node running
+    points: list[Any] = []
+
+    def on_point(point: Any, decision: Any) -> None:
+        points.append(point)
+        if progress is not None:
+            from panel_rig.flutter_cli import point_line
+
+            progress(point_line(len(points), point, decision))
+
     try:
-        res, results, timing = _drive(node, did, settings, startup_s)
+        res, results, timing = _drive(node, did, settings, startup_s, on_point)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
     except (KeyboardInterrupt, SystemExit):
-        print(f"flutter-test stopped (a test under way commands the tunnel to 0 m/s first); recording and node "
-              f"log in {run_dir}", file=sys.stderr)
+        print(f"flutter-test stopped after {len(points)} identified test point(s) (a test under way commands the "
+              f"tunnel to 0 m/s first); recording and node log in {run_dir}", file=sys.stderr)
         raise
     finally:
         code = stop(node, STOP_WAIT_S)
@@ -128,8 +139,8 @@ def _finite(x: Any) -> float | None:
     return float(x) if isinstance(x, float) and math.isfinite(x) else None
 
 
-def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float
-           ) -> tuple[Any, list[dict[str, Any]], dict[str, float]]:
+def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float,
+           on_point: Callable[[Any, Any], None] | None = None) -> tuple[Any, list[dict[str, Any]], dict[str, float]]:
     """The client's side, in its own rclpy context (the calling process may have another)."""
     import rclpy
     from rclpy.context import Context
@@ -163,7 +174,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
             return pt, fluttered
 
         try:
-            res = run_points(next_point, settings)
+            res = run_points(next_point, settings, on_point)
         except BaseException:  # Ctrl-C, SIGTERM, a lost node: the wind off first, as an operator stops a test
             with contextlib.suppress(Exception):
                 client.command(0.0)
