@@ -301,3 +301,13 @@ def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -
         node_out = _stop(node)
         client.close()
     assert node.returncode == 0, node_out[-3000:]
+
+
+def test_controller_report_says_when_no_rig_is_heard():
+    """The periodic log line read "airspeed nan m/s" when no rig node answered on the namespace / domain."""
+    pytest.importorskip("rclpy")
+    from panel_rig.ros.controller import report_line
+
+    quiet = report_line(0, 0, 0, float("nan"), "/rig")
+    assert "no tip readings" in quiet and "/rig" in quiet and "nan" not in quiet
+    assert report_line(250, 240, 3, 10.5, "/rig") == "commands sent 240, clipped 3, airspeed 10.50 m/s"

@@ -46,6 +46,7 @@ MAX_GAP_S = 0.05  # a longer gap between readings restarts the filter (no kick f
 RESTART_BACKSTEP_S = 1.0
 #: the parameters a running controller takes (the others are design inputs, read at start)
 LIVE = ("gain_nspm2", "derivative_hz", "max_force_npm", "enabled")
+REPORT_S = 5.0  # wall seconds between the log lines of the counts
 
 
 def _positive(name: str, v: object) -> str | None:
@@ -101,7 +102,8 @@ class Controller(Node):
         self.airspeed_mps = math.nan
         self.sent = 0
         self.clipped = 0
-        self.create_timer(5.0, self._report)
+        self.readings = 0  # tip readings since the last report
+        self.create_timer(REPORT_S, self._report)
         self.add_on_set_parameters_callback(self._on_set)
         self.get_logger().info(
             f"controller up: F = -{gain:g} s/(1 + s/(2 pi {derivative_hz:g})) w [N/m per m/s], clip "
@@ -141,6 +143,7 @@ class Controller(Node):
         self.airspeed_mps = msg.vector.x
 
     def _on_tip(self, msg: PointStamped) -> None:
+        self.readings += 1
         st = msg.header.stamp
         ns = st.sec * 1_000_000_000 + st.nanosec
         last = self._last_stamp_ns
@@ -169,7 +172,17 @@ class Controller(Node):
         self.sent += 1
 
     def _report(self) -> None:
-        self.get_logger().info(f"commands sent {self.sent}, clipped {self.clipped}, airspeed {self.airspeed_mps:.2f} m/s")
+        self.get_logger().info(report_line(self.readings, self.sent, self.clipped, self.airspeed_mps,
+                                           self.get_namespace()))
+        self.readings = 0
+
+
+def report_line(readings: int, sent: int, clipped: int, airspeed_mps: float, namespace: str) -> str:
+    """The periodic log line: the counts, or that no rig is heard (it read "airspeed nan m/s" then)."""
+    if readings == 0:
+        return (f"no tip readings in the last {REPORT_S:g} s: is a rig node running in {namespace} on this "
+                f"ROS_DOMAIN_ID? (commands sent {sent}, clipped {clipped})")
+    return f"commands sent {sent}, clipped {clipped}, airspeed {airspeed_mps:.2f} m/s"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
