@@ -329,13 +329,9 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
     res = lco_sweep(cfg, speeds, args.duration, args.variant, args.aero, args.scheme, progress=Progress("sweep"))
     payload = {"airspeed_mps": speeds, "results": [r.as_dict() for r in res]}
     if args.plot:
-        from panel_rig.analysis.plots import plot_series
+        from panel_rig.analysis.plots import plot_lco_sweep
 
-        payload["plot"] = str(plot_series(args.plot, speeds, [
-            (np.array([r.rms_tip_w_over_L for r in res]), "RMS tip w/L"),
-            (np.array([r.dominant_frequency_hz for r in res]) / 50, "frequency / 50 Hz")],
-            "airspeed, m/s", "RMS w/L ; f/50", "LCO vs airspeed (Fig. 8)",
-            marks=(np.array([r.airspeed_mps for r in res if r.diverged]), "diverged (|tip w/L| over the bound)")))
+        payload["plot"] = str(plot_lco_sweep(args.plot, speeds, res, "LCO vs airspeed (Fig. 8)"))
     _emit(args, payload, lambda: "U (m/s)   RMS w/L    f (Hz)  diverged\n" + "\n".join(
         f"{r.airspeed_mps:7.2f}  {r.rms_tip_w_over_L:8.4f}  {r.dominant_frequency_hz:8.2f}  {r.diverged}" for r in res))
     return 0

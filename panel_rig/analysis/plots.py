@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import matplotlib
 
@@ -70,6 +70,17 @@ def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, 
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+def plot_lco_sweep(path: str | Path, airspeed_mps: np.ndarray, results: Sequence[Any], title: str) -> Path:
+    """Fig. 8: RMS tip w/L and frequency / 50 Hz of LCO runs against airspeed, diverged runs (no metrics) marked
+    by crosses on the axis."""
+    return plot_series(path, airspeed_mps, [
+        (np.array([r.rms_tip_w_over_L for r in results]), "RMS tip w/L"),
+        (np.array([r.dominant_frequency_hz for r in results]) / 50.0, "frequency / 50 Hz")],
+        "airspeed, m/s", "RMS w/L ; f/50 Hz", title,
+        marks=(np.array([u for u, r in zip(airspeed_mps, results) if r.diverged]),
+               "diverged (|tip w/L| over the bound)"))
 
 
 def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarray, str]],

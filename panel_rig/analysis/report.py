@@ -154,10 +154,8 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
     us = np.linspace(*paper.C5_AIRSPEEDS_MPS, 21) * ratio
     sweep = {v: lco_sweep(cfg, us, sweep_s, v, model=model) for v in ("full", "stiffness", "exact")}
     for v, res in sweep.items():
-        plots.plot_series(out / f"fig8_sweep_{v}.png", us, [
-            (np.array([r.rms_tip_w_over_L for r in res]), f"{v}: RMS tip w/L"),
-            (np.array([r.dominant_frequency_hz for r in res]) / 50.0, f"{v}: frequency / 50 Hz")],
-            "airspeed, m/s", "RMS w/L ; f/50 Hz", f"Fig. 8 ({v} nonlinearity), speeds scaled by U_f ratio")
+        plots.plot_lco_sweep(out / f"fig8_sweep_{v}.png", us, res,
+                             f"Fig. 8 ({v} nonlinearity), speeds scaled by U_f ratio")
     ok_full = [r for r in sweep["full"] if not r.diverged]
     add("C5", "LCO vs airspeed (Fig. 8): RMS rises, frequency falls", "0 -> 0.5, 22 -> 16.5 Hz",
         {"airspeed_mps": np.round(us, 2).tolist(),
