@@ -576,3 +576,33 @@ def test_a_worker_lost_while_the_warm_up_is_installed_is_retried():
     assert (flaky.calls, flaky.waits) == (2, 1)
     with pytest.raises(CommClosedError):
         _register_warm_up(Client(failures=PLUGIN_TRIES), "flutter_map")
+
+
+def test_sensitivity_ranks_cases_without_a_flutter_speed_at_their_end(base):
+    """Cases unstable at the scan's first airspeed (U_f below every found one) or without flutter below its end
+    (above) carry their rank; only failed cases are left out. Dropped, as before, the least damped cases (unstable
+    at once) took damping's influence with them: among the found cases here U_f follows the density alone."""
+    import xarray as xr
+    from scipy.stats import spearmanr
+
+    from panel_rig.studies.cases import FAILED, FOUND, NO_FLUTTER, UNSTABLE_AT_START
+    from panel_rig.studies.report import sensitivity_ranking
+
+    study = parse_spec({"kind": "uncertainty", "samples": 40, "seed": 1,
+                        "vary": {"structure.damping_ratio": {"uniform": [0.0, 0.01]},
+                                 "air.density_kgpm3": {"uniform": [1.1, 1.3]}}}, base)
+    zeta = np.array([c["structure.damping_ratio"] for c in study.cases])
+    rho = np.array([c["air.density_kgpm3"] for c in study.cases])
+    order = np.argsort(zeta)
+    status = np.full(zeta.size, FOUND)
+    status[order[:15]] = UNSTABLE_AT_START  # the least damped: unstable at once
+    status[order[-1]] = FAILED
+    status[np.argmax(rho)] = NO_FLUTTER  # one case without flutter below the scan's end: ranked above all
+    u = np.where(status == FOUND, 20.0 - 10.0 * rho, np.nan)
+    ds = xr.Dataset({"flutter_speed_mps": ("case", u), "status": ("case", status),
+                     "structure.damping_ratio": ("case", zeta), "air.density_kgpm3": ("case", rho)})
+    by_key = {r["key"]: r for r in sensitivity_ranking(study, ds)}
+    found = status == FOUND
+    assert abs(spearmanr(zeta[found], u[found]).statistic) < 0.4  # what the found cases alone say of damping
+    assert by_key["structure.damping_ratio"]["value"] > 0.6  # unstable-at-once cases rank lowest
+    assert by_key["structure.damping_ratio"]["importance"] > by_key["air.density_kgpm3"]["importance"]

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import spearmanr
+from scipy.stats import rankdata, spearmanr
 
 from panel_rig.studies.spec import Study
 
@@ -19,21 +19,36 @@ def _numeric(values: np.ndarray) -> bool:
     return np.issubdtype(np.asarray(values).dtype, np.number)
 
 
+def ranked_flutter_speeds(ds: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(which cases, the ranks of their U_f): every case but the failed ones. A case unstable already at the scan's
+    first airspeed has a U_f below every found one, a case without flutter below the scan's end one above: their
+    U_f is unknown but its rank is not (tied among themselves). Leaving them out biased the ranking: in the
+    README's uncertainty example all 27 unstable cases had a damping ratio below 0.002."""
+    from panel_rig.studies.cases import NO_FLUTTER, UNSTABLE_AT_START
+
+    u = np.asarray(ds["flutter_speed_mps"].values, float).copy()
+    status = np.asarray(ds["status"].values)
+    u[status == UNSTABLE_AT_START] = -np.inf
+    u[status == NO_FLUTTER] = np.inf
+    ok = ~np.isnan(u)
+    return ok, rankdata(u[ok])
+
+
 def sensitivity_ranking(study: Study, ds: Any) -> list[dict[str, Any]]:
     """How strongly each uncertain input drives U_f: |Spearman rank correlation| for numbers, the correlation
-    ratio (eta) for choices of strings; sorted, strongest first."""
-    u = ds["flutter_speed_mps"].values
-    ok = np.isfinite(u)
+    ratio (eta) of the ranks for choices of strings; over every case but the failed ones
+    (:func:`ranked_flutter_speeds`); sorted, strongest first."""
+    ok, r = ranked_flutter_speeds(ds)
     out = []
     for key in study.keys:
         x = ds[key].values[ok]
         if _numeric(x) and np.unique(x).size > 1:
-            rho = float(spearmanr(x, u[ok]).statistic)
+            rho = float(spearmanr(x, r).statistic)
             out.append({"key": key, "measure": "spearman", "value": rho, "importance": abs(rho)})
         elif np.unique(x).size > 1:
-            groups = [u[ok][x == g] for g in np.unique(x)]
-            total = np.sum((u[ok] - u[ok].mean()) ** 2)
-            between = sum(g.size * (g.mean() - u[ok].mean()) ** 2 for g in groups)
+            groups = [r[x == g] for g in np.unique(x)]
+            total = np.sum((r - r.mean()) ** 2)
+            between = sum(g.size * (g.mean() - r.mean()) ** 2 for g in groups)
             eta = float(np.sqrt(between / total)) if total > 0 else 0.0
             out.append({"key": key, "measure": "eta", "value": eta, "importance": eta})
         else:
