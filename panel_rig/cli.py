@@ -17,6 +17,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
+from panel_rig.paths import make_output_dir
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS
 
 
@@ -508,10 +509,10 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
         raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
     # where the results go is checked before the test runs, not after (a failed plot lost the whole run)
-    _output_dir(Path(args.bag_dir), "--bag-dir")
-    _output_dir(Path(args.plot).parent, "--plot")
+    make_output_dir(Path(args.bag_dir), "--bag-dir")
+    make_output_dir(Path(args.plot).parent, "--plot")
     if args.rerun:
-        _output_dir(Path(args.rerun).parent, "--rerun")
+        make_output_dir(Path(args.rerun).parent, "--rerun")
     try:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
@@ -523,14 +524,6 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         return 1
     _emit(args, out, lambda: format_flutter_test(out))
     return 1 if out["fluttered"] else 0
-
-
-def _output_dir(path: Path, option: str) -> None:
-    """Make an output directory now (parents too), or refuse the command naming the option."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"{option}: cannot create the directory {path}: {exc.strerror or exc}") from None
 
 
 def cmd_bag_recover(args: argparse.Namespace) -> int:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.paths import make_output_dir
 from panel_rig.processes import module_command, stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -241,13 +242,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
         print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
         return 2
-    for option, path in (("--out", args.out), ("--bag-dir", args.bag_dir)):
-        try:  # before anything runs: a directory that cannot be made was a traceback after the design
-            Path(path).mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            print(f"panel-rig control-demo: {option}: cannot create the directory {path}: {exc.strerror or exc}",
-                  file=sys.stderr)
-            return 2
+    try:  # before anything runs: a directory that cannot be made was a traceback after the design
+        make_output_dir(args.out, "--out")
+        make_output_dir(args.bag_dir, "--bag-dir")
+    except ValueError as exc:
+        print(f"panel-rig control-demo: {exc}", file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     try:
         s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),
