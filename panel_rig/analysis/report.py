@@ -146,9 +146,11 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
         None if c4.diverged else abs(c4.dominant_frequency_hz / paper.C4_FREQUENCY_HZ - 1) < 0.05, "", exact=c4_cell(c4x))
     tip4_padded = np.full(tip4x.size, np.nan)
     tip4_padded[: min(tip4.size, tip4x.size)] = tip4[: tip4x.size]
+    gone = f", diverged at {c4.diverged_at_s:.2f} s" if c4.diverged and c4.diverged_at_s is not None else ""
     plots.plot_series(out / "fig7_lco_31.png", np.arange(tip4x.size) * dt,
-                      [(tip4x, "exact"), (tip4_padded, "full (cubic)" + (", diverged" if c4.diverged else ""))],
-                      "time, s", "tip w/L", f"Fig. 7: U = {u4:.2f} m/s")
+                      [(tip4x, "exact"), (tip4_padded, "full (cubic)" + gone)],
+                      "time, s", "tip w/L", f"Fig. 7: U = {u4:.2f} m/s",
+                      marks=(np.array([c4.diverged_at_s]), "full (cubic) diverged") if gone else None)
 
     log("LCO sweep (Fig. 8)")
     us = np.linspace(*paper.C5_AIRSPEEDS_MPS, 21) * ratio
