@@ -103,7 +103,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
-    from panel_rig.rig.flutter_run import pretest_plan, rig_measure
+    from panel_rig.rig.flutter_run import pretest_plan, rig_measure, start_warning
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
     from panel_rig.ros import messages
@@ -111,6 +111,9 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
     t0 = time.monotonic()
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    warning = start_warning(start_mps, uf, margin)
+    if warning is not None and progress is not None:
+        progress(warning)
     limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
     sinks: list[Any] = []

@@ -198,3 +198,13 @@ def test_monitor_identifies_a_dwell_of_exactly_the_minimum_length():
         sink.on_block(type("Block", (), {"time_s": t[block], "tip_w_m": 1e-6 * rng.standard_normal(block.size),
                                          "state": "running"})())
     assert len(published) == 1 and published[0][1].airspeed_mps == 5.0
+
+
+def test_a_start_inside_the_margin_is_warned_of():
+    """`--start-mps` at or above (1 - margin) U_f of the pre-test analysis: the test went there without a word."""
+    from panel_rig.rig.flutter_run import start_warning
+
+    assert start_warning(None, 10.48, 0.1) is None
+    assert start_warning(9.4, 10.48, 0.1) is None
+    text = start_warning(10.0, 10.48, 0.1)
+    assert text is not None and "9.432 m/s" in text and "may flutter" in text

@@ -79,6 +79,16 @@ def pretest_plan(cfg: PanelConfig, variant: str = "full", margin: float = 0.1, s
     return st, uf, mode, default_plan(uf, margin, start_mps, **changes)
 
 
+def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str | None:
+    """A warning when the asked first airspeed is already inside the margin of the pre-test analysis's flutter
+    speed (the procedure itself never goes there: it stops when a point is that close)."""
+    edge = (1.0 - margin) * uf_mps
+    if start_mps is None or start_mps < edge:
+        return None
+    return (f"warning: --start-mps {start_mps:g} m/s is at or above (1 - margin) x the pre-test analysis's flutter "
+            f"speed ({1.0 - margin:g} x {uf_mps:.3f} = {edge:.3f} m/s): the first point may flutter")
+
+
 def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,
                margin: float = 0.1, start_mps: float | None = None,
                on_point: Callable[[TestPoint, Decision], None] | None = None

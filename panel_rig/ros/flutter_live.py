@@ -73,9 +73,12 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     run_dir = Path(tempfile.mkdtemp(prefix=time.strftime("flutter_test_%Y%m%d_%H%M%S_"), dir=base))
 
     # the pre-test analysis (this process) gives the plan: U_f, the start and the step
-    from panel_rig.rig.flutter_run import pretest_plan
+    from panel_rig.rig.flutter_run import pretest_plan, start_warning
 
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    warning = start_warning(start_mps, uf, margin)
+    if warning is not None and progress is not None:
+        progress(warning)
     model = st.model
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
                           run_dir if bag_dir is not None else None, rerun)
