@@ -30,6 +30,13 @@ class RigGone(RuntimeError):
     """The node stopped answering (no diagnostics, or its process ended) before the test finished."""
 
 
+#: wall seconds from the client's start before its first command: a node already running on the domain is seen only
+#: once it announces itself again, every 3 s by Fast DDS's default (measured here: its endpoints were discovered
+#: after 0.1 s or after 2.4-3.0 s, 15 trials), while the test's own, new node announces itself at once. Without the
+#: wait a rig left running on the domain could take the first commands unseen.
+DISCOVERY_SETTLE_S = 3.5
+
+
 class FlutterTestClient(Node):
     """Airspeed commands out; flutter-monitor results and tunnel diagnostics in."""
 
@@ -42,7 +49,7 @@ class FlutterTestClient(Node):
         self.results: list[dict[str, Any]] = []
         self.diagnostics: dict[str, str] = {}
         self.diagnostics_received = 0  # tunnel diagnostics messages so far
-        self._last_heard = time.monotonic()
+        self._last_heard = self._created = time.monotonic()
         self.sub_monitor = self.create_subscription(DiagnosticArray, TOPIC, self._on_monitor, MONITOR_QOS)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, COMMAND_QOS)
 
@@ -75,10 +82,12 @@ class FlutterTestClient(Node):
         """Until the node publishes diagnostics and its flutter monitor and subscribes to ``airspeed_cmd`` (model
         build and JIT load can take a minute on a cold cache: ``startup_s`` of wall time). A second rig node in the
         namespace (somebody's own, on the same ROS domain) would take the test's commands: refused (:meth:`_check_alone`,
-        at every spin of the test)."""
+        at every spin of the test), and the first command waits until such a node has had time to be discovered
+        (DISCOVERY_SETTLE_S after the client's start)."""
         deadline = time.monotonic() + startup_s
         while (not self.diagnostics or self.pub_airspeed.get_subscription_count() == 0
-               or self.sub_monitor.get_publisher_count() == 0):
+               or self.sub_monitor.get_publisher_count() == 0
+               or time.monotonic() - self._created < DISCOVERY_SETTLE_S):
             self._last_heard = time.monotonic()  # start-up is bounded by the deadline, not the silence timeout
             self._spin(executor, 0.1)
             if time.monotonic() > deadline:
