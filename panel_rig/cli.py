@@ -412,13 +412,18 @@ def cmd_static(args: argparse.Namespace) -> int:
     except RuntimeError as exc:
         raise UsageError(str(exc)) from None
     payload = r.as_dict()
-    payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes)
+    # a dead load across the clamped direction turns the tip towards it, never past it (pi/2 as the load grows
+    # without bound): a tip angle beyond is the modal series' truncation (3 modes pass it between P L^2/D = 30 and 35)
+    note = (f"the tip angle passes pi/2, which a dead transverse load cannot do: {cfg.n_modes} modes do not resolve "
+            "this load; raise structure.modes (e.g. --set structure.modes=6)"
+            if abs(r.tip_angle_rad) >= np.pi / 2 else None)
+    payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes, note=note)
     _emit(args, payload, lambda: (
         f"dead transverse tip load, variant {r.variant}, {cfg.n_modes} modes\n"
         f"P L^2/D          {r.alpha:10.5f}   (P = {alpha * D / L**2:.5g} N/m)\n"
         f"tip w/L          {r.tip_w_over_L:10.5f}\n"
         f"tip u/L          {r.tip_u_over_L:10.5f}   (axial shortening)\n"
-        f"tip angle, rad   {r.tip_angle_rad:10.5f}"))
+        f"tip angle, rad   {r.tip_angle_rad:10.5f}" + ("" if note is None else f"\nnote: {note}")))
     return 0
 
 

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -284,3 +285,12 @@ def test_a_panel_that_does_not_move_has_no_frequency():
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
     assert res["rms_tip_w_over_L"] == 0.0 and res["dominant_frequency_hz"] is None, res
+
+
+def test_static_says_when_the_modal_series_is_truncated():
+    """A dead transverse tip load never turns the tip past pi/2; 3 modes did at P L^2/D = 50 without a word."""
+    far = json.loads(run("static", "--tip-load-parameter", "50", "--variant", "exact", "--json").stdout)
+    assert far["tip_angle_rad"] > np.pi / 2 and "structure.modes" in far["note"]
+    resolved = json.loads(run("static", "--tip-load-parameter", "50", "--variant", "exact", "--json", "--set",
+                              "structure.modes=6").stdout)
+    assert resolved["tip_angle_rad"] < np.pi / 2 and resolved["note"] is None
