@@ -759,3 +759,19 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
            StepSummary(2, "reset", 1.1, 1.2, note="reset")]
     annotate_aborts(own, {1.12: "operator abort"})  # the operator's own abort step already says it
     assert [s.note for s in own] == ["aborted at t = 1.120 s; airspeed ramping to 0", "reset"]
+
+
+def test_a_value_typed_with_dash_p_wins_over_the_params_files():
+    """`panel-rig run --params physics.yaml --ros-args -p structure.modes:=4` started with the file's 3 modes: the
+    files were given to the node as overrides, which win over rcl's -p values. The files now yield to -p."""
+    from panel_rig.ros.node import command_line_parameter_names, overrides_from_files, start_overrides
+
+    physics = str(Path(__file__).parents[1] / "config" / "tang_dowell_2002.yaml")
+    argv = ["--params", physics, "--ros-args", "-r", "__ns:=/rig", "-p", "structure.modes:=4",
+            "--param", "panel_rig:model.variant:=exact", "--", "-p", "not.a.ros.arg:=1"]
+    assert command_line_parameter_names(argv) == {"structure.modes", "model.variant"}
+    from_file = {p.name for p in overrides_from_files([physics])}
+    assert "structure.modes" in from_file  # the file sets it
+    names = [p.name for p in start_overrides([physics], argv, fast=True)]
+    assert "structure.modes" not in names and names[-1] == "fast"
+    assert set(names) == from_file - {"structure.modes", "model.variant"} | {"fast"}

@@ -841,7 +841,8 @@ def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
     """The parameters of ``panel_rig:`` parameter files (e.g. the physics file), as node overrides.
 
     Given to the node as ``parameter_overrides``, they apply in any namespace (rcl matches a plain
-    ``panel_rig:`` key only to ``/panel_rig``) and win over ``--ros-args --params-file`` values. Later files win.
+    ``panel_rig:`` key only to ``/panel_rig``) and win over ``--ros-args --params-file`` values, not over
+    ``--ros-args -p`` ones (:func:`command_line_parameter_names`). Later files win.
     """
     values: dict[str, Any] = {}
     for path in paths:
@@ -850,6 +851,32 @@ def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
         except ConfigError as exc:
             raise StartupError(str(exc)) from None
     return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def command_line_parameter_names(argv: Sequence[str]) -> set[str]:
+    """Names set by ``-p NAME:=VALUE`` / ``--param`` inside ``--ros-args ... [--]`` blocks (``NODE:NAME:=VALUE``
+    too). The files of ``--params`` yield to them: a value typed on the command line is the one meant."""
+    names: set[str] = set()
+    inside, expect_value = False, False
+    for token in argv:
+        if token == "--ros-args":
+            inside = True
+        elif token == "--":
+            inside = False
+        elif inside and expect_value:
+            names.add(token.split(":=", 1)[0].rsplit(":", 1)[-1])
+            expect_value = False
+        elif inside and token in ("-p", "--param"):
+            expect_value = True
+    return names
+
+
+def start_overrides(param_files: Sequence[str], rcl_args: Sequence[str], fast: bool) -> list[Parameter]:
+    """The node's overrides: the ``--params`` files' values but those typed with ``-p`` (which rcl applies), and
+    ``fast`` for ``--fast``."""
+    typed = command_line_parameter_names(rcl_args)
+    overrides = [p for p in overrides_from_files(param_files) if p.name not in typed]
+    return overrides + [Parameter("fast", value=True)] if fast else overrides
 
 
 def parse_args(argv: Sequence[str]) -> tuple[Any, list[str]]:
@@ -875,12 +902,10 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
     """
     opts, rcl_args = parse_args(sys.argv[1:] if argv is None else list(argv))
     try:
-        overrides = overrides_from_files(opts.params)
+        overrides = start_overrides(opts.params, rcl_args, opts.fast)
     except StartupError as exc:
         print(f"rig_node: {exc}", file=sys.stderr)
         return 2
-    if opts.fast:
-        overrides.append(Parameter("fast", value=True))
 
     stop = threading.Event()
     node: RigNode | None = None
