@@ -332,6 +332,21 @@ def test_lowered_limits_act_on_the_present_and_are_logged():
     assert any(level == "error" and "rig aborted" in text for level, text in log.lines)
 
 
+def test_lowered_shaker_limits_act_on_the_present_force_and_are_logged():
+    """A lowered shaker force limit left a larger held force acting (only new commands were refused): the force,
+    the sine's amplitude and frequency above their lowered limits come down to them at once."""
+    log = ListLogger()
+    rig = Rig(FakeStepper(), 0.27, tunnel=TunnelSettings(0.5), logger=log)
+    assert rig.command_force(-0.3).accepted and rig.command_amplitude(0.2).accepted
+    assert rig.command_frequency(20.0).accepted
+    rig.set_limits(max_force_npm=0.01, max_amplitude_npm=0.05, max_frequency_hz=10.0)
+    assert (rig.shaker.held_force_npm, rig.shaker.amplitude_npm, rig.shaker.frequency_hz) == (-0.01, 0.05, 10.0)
+    warned = [text for level, text in log.lines if level == "warning"]
+    assert [w.split(" limit")[0] for w in warned] == ["shaker force", "shaker amplitude", "shaker frequency"]
+    rig.set_limits(max_force_npm=1.0)  # raising a limit changes nothing
+    assert rig.shaker.held_force_npm == -0.01 and len(log.lines) == len(warned)
+
+
 @pytest.mark.parametrize("scene", ["settled", "lagging", "sine_on", "control_pending"])
 def test_block_inputs_equal_the_per_step_inputs_bit_for_bit(scene: str) -> None:
     """The block march's inputs (airspeed before and after each step, total and shaker force) skip the per-step

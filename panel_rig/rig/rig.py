@@ -404,13 +404,27 @@ class Rig:
     def set_limits(self, **changes: float) -> None:
         """Change safety limits live (validated; raises ValueError). They act on the present state: an airspeed
         set-point above a lowered airspeed limit is brought down to it (the tunnel ramps down with its lag), and a
-        tip already beyond a lowered tip limit aborts the run. Both are logged."""
+        tip already beyond a lowered tip limit aborts the run; a shaker force, amplitude or frequency above its
+        lowered limit is brought down to it at once. All are logged."""
         self.limits = replace(self.limits, **changes)
-        act = self.actuator
-        if act.setpoint_mps > self.limits.max_airspeed_mps:
-            self.log.warning(f"airspeed limit lowered to {self.limits.max_airspeed_mps:g} m/s: set-point "
-                             f"{act.setpoint_mps:g} -> {self.limits.max_airspeed_mps:g} m/s, tunnel ramping down")
-            act.setpoint_mps = self.limits.max_airspeed_mps
+        lim, act, sh = self.limits, self.actuator, self.shaker
+        if act.setpoint_mps > lim.max_airspeed_mps:
+            self.log.warning(f"airspeed limit lowered to {lim.max_airspeed_mps:g} m/s: set-point "
+                             f"{act.setpoint_mps:g} -> {lim.max_airspeed_mps:g} m/s, tunnel ramping down")
+            act.setpoint_mps = lim.max_airspeed_mps
+        if abs(sh.held_force_npm) > lim.max_force_npm:
+            held = math.copysign(lim.max_force_npm, sh.held_force_npm)
+            self.log.warning(f"shaker force limit lowered to {lim.max_force_npm:g} N/m: held force "
+                             f"{sh.held_force_npm:g} -> {held:g} N/m")
+            sh.held_force_npm = held
+        if sh.amplitude_npm > lim.max_amplitude_npm:
+            self.log.warning(f"shaker amplitude limit lowered to {lim.max_amplitude_npm:g} N/m: amplitude "
+                             f"{sh.amplitude_npm:g} -> {lim.max_amplitude_npm:g} N/m")
+            sh.amplitude_npm = lim.max_amplitude_npm
+        if sh.frequency_hz > lim.max_frequency_hz:
+            self.log.warning(f"shaker frequency limit lowered to {lim.max_frequency_hz:g} Hz: frequency "
+                             f"{sh.frequency_hz:g} -> {lim.max_frequency_hz:g} Hz")
+            sh.frequency_hz = lim.max_frequency_hz
         if self.state == RUNNING:
             reason = check_tip(float(self.stepper.tip_w_over_L), self.limits.tip_limit(self.panel_length_m))
             if reason:
