@@ -17,7 +17,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
-from panel_rig.paths import make_output_dir
+from panel_rig.paths import make_output_dir, rrd_path_problem
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS
 
 
@@ -518,6 +518,9 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     make_output_dir(Path(args.plot).parent, "--plot")
     if args.rerun:
         make_output_dir(Path(args.rerun).parent, "--rerun")
+        problem = rrd_path_problem(args.rerun)
+        if problem:
+            raise UsageError(f"--rerun: {problem}")
     try:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
@@ -644,6 +647,10 @@ def format_table(result: dict[str, Any]) -> str:
     if refused:
         lines.append("commands the rig refused (left out): "
                      + ", ".join(f"{topic} {count}" for topic, count in sorted(refused.items())))
+    gaps = result.get("gaps") or []
+    if gaps:
+        lines.append("gaps in the recording (data lost, e.g. a chunk a recovery dropped; no plateau spans one): "
+                     + ", ".join(f"{g['from_s']:.2f}-{g['to_s']:.2f} s" for g in gaps))
     lines.append(head)
     for p in result["plateaus"]:
         lines.append(
@@ -691,6 +698,10 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     1 cannot write outputs."""
     from panel_rig.recording.errors import RecordingError
 
+    problem = rrd_path_problem(args.rerun) if args.rerun is not None else None
+    if problem:  # before the analysis: a --rerun that cannot be written threw the whole result away
+        print(f"{ANALYZE_PROG}: --rerun: {problem}", file=sys.stderr)
+        return 2
     try:
         result = analyze_bag(args.bag, args.plots, args.rerun)
     except RecordingError as exc:

@@ -14,3 +14,16 @@ def make_output_dir(path: str | Path, option: str) -> Path:
     except OSError as exc:
         raise ValueError(f"{option}: cannot create the directory {path}: {exc.strerror or exc}") from None
     return path
+
+
+def rrd_path_problem(path: str | Path) -> str | None:
+    """Why a Rerun recording cannot be saved at ``path``, or None: it must name a .rrd file (rerun replaces
+    whatever is there: a typo once overwrote a profile YAML) in an existing directory."""
+    path = Path(path)
+    if path.suffix.lower() != ".rrd":
+        return f"a Rerun recording is saved to a .rrd file, not {str(path)!r}"
+    if path.is_dir():
+        return f"{path} is a directory: name the .rrd file in it"
+    if not path.parent.is_dir():
+        return f"directory {path.parent} does not exist"
+    return None

@@ -481,3 +481,32 @@ def test_random_response_in_turbulence_is_not_growth() -> None:
     rng = np.random.default_rng(1)
     growth = 1e-4 * np.exp(0.5 * t) * np.sin(2 * np.pi * 22.8 * t) + 2e-6 * rng.normal(size=n)
     assert analyze_plateau(t, growth, u, {}, 0, n)["status"] == "growing"
+
+
+def test_instantaneous_airspeed_steps_are_separate_plateaus() -> None:
+    """tunnel.time_constant_s = 0 (allowed): the steady windows on both sides of each step joined 5, 6 and 7 m/s
+    into one run, of which only the last level survived."""
+    from panel_rig.analysis.bag_analysis import find_plateaus
+
+    t = np.arange(0.0, 45.0, 1.0 / 500.0)
+    u = np.select([t < 10, t < 20, t < 30], [5.0, 6.0, 7.0], 0.0)
+    ranges = find_plateaus(t, u)
+    assert [float(u[i0]) for i0, _ in ranges] == [5.0, 6.0, 7.0, 0.0]
+    assert [(round(t[i0], 3), round(t[i1 - 1], 3)) for i0, i1 in ranges] == [
+        (0.0, 9.998), (10.0, 19.998), (20.0, 29.998), (30.0, 44.998)]
+
+
+def test_a_gap_in_the_recording_splits_plateaus_and_is_reported() -> None:
+    """A recovered bag that lost a chunk (t 12-14 s here): the plateau bridged it, and the gap, counted in the mean
+    sample interval, changed every window of the analysis, far from the gap too."""
+    from panel_rig.analysis.bag_analysis import analyze_series, find_plateaus, mean_dt
+
+    t = np.arange(0.0, 30.0, 1.0 / 500.0)
+    keep = (t < 12.0) | (t >= 14.0)
+    t, u = t[keep], np.full(np.count_nonzero(keep), 8.0)
+    assert mean_dt(t) == pytest.approx(1.0 / 500.0, rel=1e-9)
+    ranges = find_plateaus(t, u)
+    assert [(round(t[i0], 3), round(t[i1 - 1], 3)) for i0, i1 in ranges] == [(0.0, 11.998), (14.0, 29.998)]
+    result = analyze_series(t, 1e-4 * np.sin(2 * np.pi * 5.0 * t), u, {})
+    assert result["gaps"] == [{"from_s": pytest.approx(11.998), "to_s": pytest.approx(14.0)}]
+    assert result["sample_rate_hz"] == pytest.approx(500.0)

@@ -62,10 +62,21 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--control", "--rate-hz", "0"], "--rate-hz"),  # was a ZeroDivisionError traceback
     (["flutter", "--control", "--plot", "/proc/no_such_dir/x.png"], "/proc/no_such_dir"),  # any OSError: one line
     (["flutter-test", "--domain-id", "300"], "--domain-id"),  # was an RTPS error on stdout
+    # rcl's argument errors were tracebacks (from remove_ros_args or the node's creation)
+    (["run", "--ros-args", "--params-file", "/no/such/file.yaml"], "Couldn't parse params file"),
+    (["run", "--fast", "--ros-args", "-p", "publish_rate_hz"], "quote it"),
+    (["run", "--ros-args", "-r", "__ns:=/rig/"], "must not end with a '/'"),
+    (["control", "--ros-args", "-p"], "bad --ros-args"),
+    (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),
+    (["operate", "--profile", "config/staircase.yaml", "--timeout", "nan"], "--timeout"),  # never timed out
     (["flutter-test", "--settle", "inf"], "--settle"),  # was refused by the node, the reason only in its log
     (["flutter-test", "--dwell", "1e9"], "--dwell"),
     # checked before the test runs: a plot that could not be written lost a whole test's results
     (["flutter-test", "--plot", "/proc/no_such_dir/vg.png"], "--plot"),
+    # rerun replaces whatever the path names: a typo overwrote a profile YAML; a directory lost a whole analysis
+    (["flutter-test", "--rerun", "config/staircase.yaml"], ".rrd file"),
+    (["analyze", "bags/stiffness_staircase", "--rerun", "config/staircase.yaml"], ".rrd file"),
+    (["analyze", "bags/stiffness_staircase", "--json", "--rerun", "config"], ".rrd file"),
     (["control-demo", "--out", "/proc/no_such_dir/demo"], "--out"),  # was a traceback after the design
     (["flutter", "--control", "--vg", "5:10:1"], "--vg"),  # options the analysis would silently ignore
     (["flutter", "--control", "--aero", "full"], "--aero full"),

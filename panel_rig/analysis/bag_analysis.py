@@ -73,10 +73,28 @@ class Criteria:
     extrapolation_points: int = 3
 
 
+GAP_FACTOR = 3.0  # a sample interval this many times the median one is a gap in the recording
+
+
+def gap_mask(t_s: np.ndarray) -> np.ndarray:
+    """Per sample interval (size n - 1): True where the recording has a gap (a chunk a recovered bag lost)."""
+    d = np.diff(np.asarray(t_s, dtype=float))
+    return d > GAP_FACTOR * float(np.median(d)) if d.size else np.zeros(0, bool)
+
+
 def mean_dt(t_s: np.ndarray) -> float:
-    """Mean sample interval. Not the median: in fast mode readings fall on whole physics steps
-    (e.g. 4 or 5 steps of 1/2048 s for 500 Hz), and the median would bias frequencies by 2.4 %."""
-    return float((t_s[-1] - t_s[0]) / (t_s.size - 1)) if t_s.size > 1 else 0.0
+    """Mean sample interval outside gaps. Not the median: in fast mode readings fall on whole physics steps
+    (e.g. 4 or 5 steps of 1/2048 s for 500 Hz), and the median would bias frequencies by 2.4 %. A gap (a lost
+    chunk of a recovered bag) counted in the mean changed every window size of the analysis."""
+    if t_s.size < 2:
+        return 0.0
+    d = np.diff(np.asarray(t_s, dtype=float))
+    return float(np.mean(d[~gap_mask(t_s)]))
+
+
+def recording_gaps(t_s: np.ndarray) -> list[dict[str, float]]:
+    """The gaps of a recording: [{"from_s", "to_s"}] (times relative as ``t_s``)."""
+    return [{"from_s": float(t_s[i]), "to_s": float(t_s[i + 1])} for i in np.flatnonzero(gap_mask(t_s))]
 
 
 # ---------------------------------------------------------------------------------- plateaus
@@ -97,16 +115,21 @@ def find_plateaus(t_s: np.ndarray, airspeed_mps: np.ndarray, crit: Criteria = Cr
     win = np.lib.stride_tricks.sliding_window_view(u, n_w)
     ok_start = (win.max(axis=1) - win.min(axis=1)) <= crit.tol_mps
     steady = np.convolve(ok_start.astype(float), np.ones(n_w))[:n] > 0
+    # a plateau never spans a gap in the recording nor a step of the airspeed between two samples: steady windows
+    # on both sides of an instantaneous step (tunnel.time_constant_s = 0) joined two plateaus into one run
+    breaks = gap_mask(t_s) | (np.abs(np.diff(u)) > crit.tol_mps)
     out = []
-    for i0, i1 in _runs(steady):
-        seg = u[i0:i1]
-        ref = float(np.median(seg[seg.size // 2 :]))
-        inside = _runs(np.abs(seg - ref) <= crit.tol_mps)
-        if not inside:
-            continue
-        a, b = max(inside, key=lambda r: r[1] - r[0])
-        if t_s[i0 + b - 1] - t_s[i0 + a] >= crit.min_duration_s:
-            out.append((i0 + a, i0 + b))
+    for r0, r1 in _runs(steady):
+        cuts = [r0, *(r0 + 1 + np.flatnonzero(breaks[r0:r1 - 1])).tolist(), r1]
+        for i0, i1 in zip(cuts[:-1], cuts[1:]):
+            seg = u[i0:i1]
+            ref = float(np.median(seg[seg.size // 2 :]))
+            inside = _runs(np.abs(seg - ref) <= crit.tol_mps)
+            if not inside:
+                continue
+            a, b = max(inside, key=lambda r: r[1] - r[0])
+            if t_s[i0 + b - 1] - t_s[i0 + a] >= crit.min_duration_s:
+                out.append((i0 + a, i0 + b))
     return out
 
 
@@ -261,6 +284,7 @@ def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.n
         "duration_s": float(t_s[-1] - t_s[0]),
         "samples": int(t_s.size),
         "sample_rate_hz": 1.0 / dt if dt > 0 else None,
+        "gaps": recording_gaps(t_s),
         "criteria": asdict(crit),
         "plateaus": plateaus,
         "onset": estimate_onset(plateaus, crit),

@@ -7,10 +7,11 @@ All data is on the duration timeline `sim_time` (simulated seconds).
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from panel_rig.paths import rrd_path_problem
 
 if TYPE_CHECKING:
     from panel_rig.rig.reading import Reading, ReadingBlock
@@ -283,10 +284,10 @@ class RerunLogger:
     def _save_path(target: str | None) -> str:
         if not target:
             raise VizError('rerun mode "save" needs a target .rrd path')
-        path = Path(target)
-        if not path.parent.is_dir():
-            raise VizError(f"cannot save Rerun recording: directory {path.parent} does not exist")
-        return str(path)
+        problem = rrd_path_problem(target)
+        if problem:
+            raise VizError(f"cannot save Rerun recording: {problem}")
+        return str(target)
 
     def _log_styles(self) -> None:
         """Static `SeriesLines` per series: name, colour, width and min/max zoom aggregation (`AGGREGATION`)."""
