@@ -207,6 +207,10 @@ def test_operator_abort_and_reset():
     refused = rig.command_airspeed(5.0)
     assert not refused.accepted and "reset" in refused.reason
     assert rig.rejected_count == 1
+    # wind and shaker off are what the abort did: an operator's stop sequence is not logged as refused
+    assert rig.command_airspeed(0.0).accepted and rig.command_force(0.0).accepted
+    assert rig.command_amplitude(0.0).accepted and rig.rejected_count == 1
+    assert not rig.command_control(0.0, rig.time_s).accepted  # the control actuator stays off until reset
     rig.advance_to(2.5)
     assert 0 < rig.actuator.airspeed_mps < u_before  # ramps down, not a jump
     assert rig.reading().state == ABORTED

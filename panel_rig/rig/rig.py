@@ -312,8 +312,11 @@ class Rig:
         self.overrun_count += 1
 
     # ---- commands -----------------------------------------------------------------------------
-    def _command(self, name: str, value: Any, check: Callable[[], str | None], apply: Callable[[], None]) -> CommandResult:
-        if self.state != RUNNING:
+    def _command(self, name: str, value: Any, check: Callable[[], str | None], apply: Callable[[], None],
+                 zero_when_aborted: bool = True) -> CommandResult:
+        """Check and apply one command. An aborted rig refuses all but 0 for the tunnel and the shaker (wind or
+        shaker off is what the abort did already: an operator's stop sequence is not refused)."""
+        if self.state != RUNNING and not (zero_when_aborted and _is_zero(value)):
             reason = f"rig aborted ({self.abort_reason}); call reset"
         else:
             try:
@@ -372,7 +375,8 @@ class Rig:
                 stamp_s, arrival, self.control.settings)
 
         return self._command("control/force_cmd", force_npm, check,
-                             lambda: self.control.command(float(force_npm), float(stamp_s), arrival))
+                             lambda: self.control.command(float(force_npm), float(stamp_s), arrival),
+                             zero_when_aborted=False)
 
     def set_control(self, **changes: float) -> None:
         """Change the control actuator's settings live (validated; raises ValueError)."""
@@ -510,3 +514,8 @@ class Rig:
             except Exception as exc:  # noqa: BLE001 (every other sink still gets closed)
                 self.log.error(f"closing sink {type(sink).__name__} failed: {type(exc).__name__}: {exc}")
         self.sinks.clear()
+
+
+def _is_zero(value: Any) -> bool:
+    """A command value of exactly 0 (a number; anything else is checked as usual)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value == 0.0

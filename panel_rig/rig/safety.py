@@ -100,5 +100,5 @@ def check_tip(tip_w_over_L: float, limit_w_over_L: float) -> str | None:
     if not math.isfinite(tip_w_over_L):
         return f"tip w/L is not finite ({tip_w_over_L!r})"
     if abs(tip_w_over_L) > limit_w_over_L:
-        return f"tip |w/L| = {abs(tip_w_over_L):.3g} exceeds the limit {limit_w_over_L:.3g}"
+        return f"tip |w/L| = {abs(tip_w_over_L):.5g} exceeds the limit {limit_w_over_L:.5g}"
     return None
