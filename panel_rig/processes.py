@@ -24,6 +24,17 @@ def module_command(module: str, *args: str) -> list[str]:
     return [sys.executable, "-P", "-m", module, *args]
 
 
+class StopRequest(threading.Event):
+    """The stop flag of a ROS program, set by :func:`signals_set`; ``signum`` says which signal set it."""
+
+    signum: int | None = None
+
+    @property
+    def exit_status(self) -> int:
+        """The shell's status for the signal (130 Ctrl-C, 143 SIGTERM)."""
+        return 128 + (self.signum if self.signum is not None else signal.SIGINT)
+
+
 @contextmanager
 def signals_set(stop: threading.Event) -> Iterator[None]:
     """Within the block SIGINT and SIGTERM only set ``stop``: the spin loop turns it into a clean exit between
@@ -31,8 +42,14 @@ def signals_set(stop: threading.Event) -> Iterator[None]:
     KeyboardInterrupt wherever it lands: inside rclpy's conversion of a taken sample it left the subscription's
     callback group busy for good.) The previous handlers come back on leaving the block."""
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum: int, _frame: object) -> None:
+        if isinstance(stop, StopRequest) and stop.signum is None:
+            stop.signum = signum
+        stop.set()
+
     for s in previous:
-        signal.signal(s, lambda *_: stop.set())
+        signal.signal(s, handler)
     try:
         yield
     finally:

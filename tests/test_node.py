@@ -290,6 +290,17 @@ def test_bad_commands_rejected_and_counted(fast_node: subprocess.Popen, client: 
     client.wait(lambda: len(client.got["airspeed"]) > n + 5, 10.0, "readings after a bad command")
 
 
+def test_rejections_on_different_topics_are_each_logged(fast_node: subprocess.Popen, client: Client) -> None:
+    """rclpy's throttle is per call site: a rejected airspeed hid the rejected force and frequency sent right
+    after it (one shared 0.2 s throttle). Each topic has its own now."""
+    client.got["rosout"].clear()
+    for topic, value in (("airspeed_cmd", 50.0), ("shaker/force_cmd", 100.0), ("shaker/frequency_cmd", 1e5)):
+        client.publish(topic, value)
+    expected = ("airspeed_cmd 50.0 rejected", "shaker/force_cmd 100.0 rejected", "shaker/frequency_cmd 100000.0 rejected")
+    client.wait(lambda: all(any(e in m.msg for m in client.got["rosout"]) for e in expected), 10.0,
+                "a warning for each rejected command")
+
+
 def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -> None:
     reset(client)
     client.publish("airspeed_cmd", 6.0)
@@ -312,7 +323,9 @@ def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -
 
 
 def _param(name: str, value: Any) -> ParameterMsg:
-    if isinstance(value, float):
+    if isinstance(value, bool):
+        v = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, float):
         v = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
     else:
         v = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(value))
@@ -335,6 +348,12 @@ def test_live_parameters(fast_node: subprocess.Popen, client: Client) -> None:
     # valid alone, not together: a lock-step delay at or above the command timeout refuses every control command
     pair = set_param("control.fast_delay_s", 1.0)
     assert not pair.successful and "control.timeout_s" in pair.reason, pair.reason
+    # faster than the physics steps (2048 Hz): repeated readings under new stamps
+    fast = set_param("publish_rate_hz", 5000.0)
+    assert not fast.successful and "physics step rate" in fast.reason, fast.reason
+    # rclpy takes use_sim_time live, and a real-time node then waits for a /clock nobody publishes
+    clock = set_param("use_sim_time", True)
+    assert not clock.successful and "read at start" in clock.reason, clock.reason
     assert set_param("safety.max_airspeed_mps", 5.0).successful
     before = int(client.next_diag()["rejected_commands"])
     client.publish("airspeed_cmd", 6.0)
@@ -394,11 +413,13 @@ def test_signal_exits_cleanly_in_real_time(ros_env: dict[str, str], client: Clie
     assert not leftovers, f"left in /dev/shm: {sorted(leftovers)}"
 
 
-def test_invalid_parameters_exit_code_2(ros_env: dict[str, str]) -> None:
-    proc = _start(ros_env, "panel.length_m:=-1.0")
+@pytest.mark.parametrize("param, says", [("panel.length_m:=-1.0", "panel.length_m"),
+                                         ("publish_rate_hz:=5000.0", "above the physics step rate")])
+def test_invalid_parameters_exit_code_2(ros_env: dict[str, str], param: str, says: str) -> None:
+    proc = _start(ros_env, param)
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 2
-    assert "panel.length_m" in out
+    assert says in out
 
 
 @pytest.mark.parametrize("params, says", [
@@ -743,6 +764,29 @@ def test_operator_signal_only_requests_a_stop(ros_env: dict[str, str]) -> None:
     finally:
         rclpy.shutdown()
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_a_stopped_operator_winds_off_and_shows_what_it_played(fast_node: subprocess.Popen, client: Client,
+                                                                ros_env: dict[str, str], tmp_path: Path) -> None:
+    """SIGTERM mid-profile: the tunnel was left at the last set-point, nothing said where the profile stopped, and
+    the status was 130. Now: 0 m/s and the shaker off (confirmed by the rig), the steps played so far, 143."""
+    reset(client)
+    profile = tmp_path / "long.yaml"
+    profile.write_text("steps:\n  - airspeed: 6.0\n  - dwell_s: 100000.0\n  - airspeed: 2.0\n")
+    proc = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(profile), "--namespace", "/rig"],
+                            env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        client.wait(lambda: float(client.diag().get("airspeed_setpoint_mps", "nan")) == 6.0, 60.0,
+                    "the operator's first command")
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err[-2000:]
+    assert "stopped at step 2 of 3: tunnel commanded to 0 m/s, shaker off" in err, err[-2000:]
+    assert [line.split()[:3] for line in out.splitlines() if line.strip()[:1].isdigit()] == [["1", "airspeed", "6.0"]]
+    assert float(client.next_diag()["airspeed_setpoint_mps"]) == 0.0
 
 
 def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> None:

@@ -36,7 +36,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
 from panel_rig.rig.control import ControlSettings
-from panel_rig.ros.session import ros_session
+from panel_rig.ros.session import ros_arguments_problem, ros_session
 
 NODE_NAME = "panel_rig_controller"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -193,6 +193,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="panel-rig control", description=__doc__.splitlines()[0])
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="physics parameters for the design (default: the paper's)")
+    problem = ros_arguments_problem(args)
+    if problem:
+        print(f"panel-rig control: {problem}", file=sys.stderr)
+        return 2
     opts = parser.parse_args(remove_ros_args(["controller", *args])[1:])
     stop = threading.Event()
     node = None

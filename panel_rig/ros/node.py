@@ -47,10 +47,12 @@ from panel_rig.ros.params import (
     check_node_params,
     combination_problems,
     parameter_table,
+    publish_rate_problem,
 )
-from panel_rig.ros.session import ros_session
+from panel_rig.ros.session import ros_arguments_problem, ros_session
 
 NODE_NAME = "panel_rig"
+REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 SHAPE_POINTS = 31
@@ -153,6 +155,7 @@ class RigNode(Node):
 
         # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
         self._diag_rejected = 0
+        self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
         self._stamp_offset_ns = 0 if self.fast else self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
         self._wall0 = time.monotonic()
@@ -217,6 +220,9 @@ class RigNode(Node):
             cfg = config_from_flat(physics)
         except ConfigError as exc:
             raise StartupError(f"invalid physics parameter: {exc}") from exc
+        problem = publish_rate_problem(node_values["publish_rate_hz"], cfg.dt_s)
+        if problem:
+            raise StartupError(f"invalid node parameters: {problem}")
         if node_values["safety.max_tip_w_over_L"] >= cfg.max_tip_w_over_L:
             self.get_logger().warning(
                 f"safety.max_tip_w_over_L = {node_values['safety.max_tip_w_over_L']:g} is not below the "
@@ -261,12 +267,20 @@ class RigNode(Node):
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live change: physics and structural parameters are refused with a reason."""
         for prm in params:
+            if prm.name == "use_sim_time" and prm.value != self.get_parameter("use_sim_time").value:
+                # rclpy takes it live, and a real-time node then waits for a /clock nobody publishes: frozen
+                return SetParametersResult(successful=False, reason="use_sim_time is read at start: restart the "
+                                           "node with -p use_sim_time:=true (a fast node publishes /clock itself)")
             spec = NODE_PARAMS.get(prm.name)
             if spec is None:
                 continue
             reason = spec.check(prm.value)
             if reason:
                 return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
+            if prm.name == "publish_rate_hz":
+                reason = publish_rate_problem(float(prm.value), self.rig.dt_s)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
         after = {name: self.get_parameter(name).value for name in ("control.fast_delay_s", "control.timeout_s")}
         after.update({prm.name: prm.value for prm in params if prm.name in after})
         problems = combination_problems(after)
@@ -434,8 +448,7 @@ class RigNode(Node):
             except Exception as exc:  # noqa: BLE001
                 self.get_logger().error(f"rerun control failed: {exc}", throttle_duration_sec=5.0)
         if not result.accepted:
-            self.get_logger().warning(f"control/force_cmd {force!r} rejected: {result.reason}",
-                                      throttle_duration_sec=0.2)
+            self._warn_rejected("control/force_cmd", f"control/force_cmd {force!r} rejected: {result.reason}")
 
     def lockstep_wait(self, executor: SingleThreadedExecutor) -> None:
         """Fast mode with a controller attached: serve callbacks until the reading just published is answered (a
@@ -503,9 +516,17 @@ class RigNode(Node):
             result = command(msg.data)
             self._record_command(full, msg, result.accepted)
             if not result.accepted:
-                self.get_logger().warning(f"{topic} {msg.data!r} rejected: {result.reason}", throttle_duration_sec=0.2)
+                self._warn_rejected(topic, f"{topic} {msg.data!r} rejected: {result.reason}")
 
         return callback
+
+    def _warn_rejected(self, topic: str, text: str) -> None:
+        """One warning per rejected command, at most one per topic every REJECTION_LOG_S (wall): rclpy's own
+        throttle is per call site, so a rejected airspeed hid a rejected force sent just after it."""
+        now = time.monotonic()
+        if now - self._rejection_logged.get(topic, -math.inf) >= REJECTION_LOG_S:
+            self._rejection_logged[topic] = now
+            self.get_logger().warning(text)
 
     def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
         """Every command received goes into the recording: on its own topic if the rig took it, else on
@@ -900,7 +921,12 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
     Own options anywhere outside ``--ros-args ... [--]``: ``--fast``, ``--params FILE`` (see
     :func:`overrides_from_files`).
     """
-    opts, rcl_args = parse_args(sys.argv[1:] if argv is None else list(argv))
+    args = sys.argv[1:] if argv is None else list(argv)
+    problem = ros_arguments_problem(args)
+    if problem:
+        print(f"rig_node: {problem}", file=sys.stderr)
+        return 2
+    opts, rcl_args = parse_args(args)
     try:
         overrides = start_overrides(opts.params, rcl_args, opts.fast)
     except StartupError as exc:

@@ -35,7 +35,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from panel_rig.config import ConfigError, load_yaml_file
-from panel_rig.ros.session import ros_session
+from panel_rig.processes import StopRequest
+from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -170,6 +171,8 @@ class Operator(Node):
         }
         self.clients_ = {name: self.create_client(Trigger, name) for name in ("reset", "abort")}
         self.commanded_mps = 0.0
+        self.setpoint_mps = math.nan  # the rig's airspeed set-point in its last diagnostics
+        self.played: list[StepSummary] = []  # the steps done so far
 
     def _on_airspeed(self, msg: Vector3Stamped) -> None:
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
@@ -184,6 +187,7 @@ class Operator(Node):
             if "sim_time_s" not in values or "aborts" not in values:
                 continue  # not the rig's
             self.diag_sim_time_s = max(self.diag_sim_time_s, float(values["sim_time_s"]))
+            self.setpoint_mps = float(values.get("airspeed_setpoint_mps", "nan"))
             if values.get("last_abort_time_s"):
                 self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
 
@@ -232,10 +236,21 @@ class Operator(Node):
         while self.time_s < t_s:
             self._spin(0.05)
 
+    def wind_off(self, timeout_s: float = 3.0) -> bool:
+        """Airspeed 0 and the shaker off, as an operator ends a stopped test; True once the rig's diagnostics show
+        the 0 m/s set-point (at most ``timeout_s`` of wall time: the stop flag is set, so no :meth:`_spin`)."""
+        for name in ("airspeed", "force", "amplitude"):
+            self.send(name, 0.0)
+        self.setpoint_mps = math.nan
+        deadline = time.monotonic() + timeout_s
+        while self.setpoint_mps != 0.0 and time.monotonic() < deadline:
+            rclpy.spin_once(self, timeout_sec=0.05)
+        return self.setpoint_mps == 0.0
+
     def play(self, steps: Sequence[Step]) -> list[StepSummary]:
-        """Play the steps; returns one summary per step."""
+        """Play the steps; returns one summary per step (:attr:`played` holds those done so far)."""
         self.wait_for_rig()
-        out: list[StepSummary] = []
+        out = self.played
         for i, step in enumerate(steps):
             s = StepSummary(i + 1, step.describe(), self.time_s)
             self._samples = s.samples
@@ -334,15 +349,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--profile", required=True, metavar="FILE.yaml", help="YAML profile (see config/staircase.yaml)")
     parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
     parser.add_argument("--timeout", type=float, default=10.0, help="wall seconds without readings = failure")
+    problem = ros_arguments_problem(args)
+    if problem:
+        print(f"rig_operator: {problem}", file=sys.stderr)
+        return 2
     opts = parser.parse_args(remove_ros_args(["rig_operator", *args])[1:])
+    problem = namespace_problem(opts.namespace)
+    if not (math.isfinite(opts.timeout) and opts.timeout > 0):
+        problem = f"--timeout must be a positive number of seconds, got {opts.timeout}"
+    elif problem:
+        problem = f"--namespace {opts.namespace!r}: {problem}"
+    if problem:
+        print(f"rig_operator: {problem}", file=sys.stderr)
+        return 2
     try:
         steps = load_profile(opts.profile)
     except ProfileError as exc:
         print(f"rig_operator: {exc}", file=sys.stderr)
         return 2
-    # SIGINT/SIGTERM set a flag that the spin loop turns into a clean stop (130): rclpy's handler shut the context
-    # down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (see Operator._spin)
-    stop = threading.Event()
+    # SIGINT/SIGTERM set a flag that the spin loop turns into a clean stop (130 / 143): rclpy's handler shut the
+    # context down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (Operator._spin)
+    stop = StopRequest()
     code = 0
     with ros_session(["rig_operator", *args], stop):
         node = Operator(opts.namespace, opts.timeout, stop=stop)
@@ -353,10 +380,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"rig_operator: {exc}", file=sys.stderr)
             code = 1
         except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
-            code = 130
+            code = stop.exit_status
+            print(stopped_note(node, len(steps)), file=sys.stderr)
+            if node.played:
+                print(format_summary(node.played))
         finally:
             node.destroy_node()
     return code
+
+
+def stopped_note(node: Operator, n_steps: int) -> str:
+    """Wind off after a stopped profile, and the line saying so (the tunnel was left at the last set-point)."""
+    at = len(node.played) + 1
+    if node.wind_off():
+        return f"rig_operator: stopped at step {at} of {n_steps}: tunnel commanded to 0 m/s, shaker off"
+    return (f"rig_operator: stopped at step {at} of {n_steps}: the rig did not confirm the wind-off commands "
+            "(0 m/s, shaker off); check it")
 
 
 if __name__ == "__main__":

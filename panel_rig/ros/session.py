@@ -4,6 +4,7 @@ shut down however the program ends."""
 
 from __future__ import annotations
 
+import re
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -25,3 +26,58 @@ def ros_session(args: Sequence[str], stop: threading.Event) -> Iterator[None]:
         finally:
             if rclpy.ok():
                 rclpy.shutdown()
+
+
+def ros_arguments_problem(args: Sequence[str]) -> str | None:
+    """One line on what rcl cannot take in ``args`` (a ``--params-file`` that is missing or not YAML, ``-p``
+    without NAME:=VALUE, ``-r __ns:=/rig/``), or None. rcl raised these as tracebacks from ``remove_ros_args`` or
+    from the node's creation."""
+    from rclpy.utilities import remove_ros_args
+
+    try:
+        remove_ros_args(["program", *args])
+    except Exception as exc:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError, a class of its private extension
+        text = _without_source_places(str(exc))
+        if "parameter override rule" in text:
+            text += " (the value after := is read as YAML: quote it, e.g. -p 'NAME:=\"text:with:colons\"')"
+        return "bad --ros-args: " + text
+    for namespace in _remapped_namespaces(args):
+        problem = namespace_problem(namespace)
+        if problem:
+            return f"bad --ros-args: -r __ns:={namespace}: {problem}"
+    return None
+
+
+def namespace_problem(namespace: str) -> str | None:
+    """Why ``namespace`` is not a ROS namespace (rclpy's reason, first line), or None."""
+    from rclpy.exceptions import InvalidNamespaceException
+    from rclpy.validate_namespace import validate_namespace
+
+    try:
+        validate_namespace(namespace if namespace.startswith("/") else "/" + namespace)
+    except InvalidNamespaceException as exc:
+        return str(exc).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")
+    return None
+
+
+def _remapped_namespaces(args: Sequence[str]) -> list[str]:
+    """The X of every ``-r [NODE:]__ns:=X`` inside ``--ros-args ... [--]``."""
+    found, inside, remap = [], False, False
+    for token in args:
+        if token == "--ros-args":
+            inside = True
+        elif token == "--":
+            inside = False
+        elif inside and remap:
+            rule, _, value = token.partition(":=")
+            if rule.rsplit(":", 1)[-1] == "__ns":
+                found.append(value)
+            remap = False
+        elif inside and token in ("-r", "--remap"):
+            remap = True
+    return found
+
+
+def _without_source_places(text: str) -> str:
+    """rcl's messages end in ", at /project/src/parser.c:271, at ...": the user needs none of them."""
+    return re.sub(r",? at /\S+:\d+", "", text).strip()
