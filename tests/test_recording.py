@@ -475,3 +475,96 @@ def test_concurrent_writers_threads(tmp_path: Path) -> None:
             t.join()
     counts = Counter(topic for topic, _, _, _ in read_bag(tmp_path / "mt"))
     assert counts == {f"/t{i}": n_each for i in range(n_threads)}
+
+
+# ------------------------------------------------------------------ 7. bag directory names
+def test_fresh_bag_dir_never_reuses_a_name(tmp_path: Path) -> None:
+    """Bag directories were named to the second: a second recorder in the same second failed to start
+    ('already exists and is not empty'). The same second now gives _2, _3, ..., also to racing threads."""
+    from panel_rig.recording import fresh_bag_dir
+
+    when_s = 1_750_000_000.0
+    stamp = time.strftime("rig_%Y%m%d_%H%M%S", time.localtime(when_s))
+    first = fresh_bag_dir(tmp_path, "rig", when_s)
+    assert first == tmp_path / stamp and first.is_dir() and not any(first.iterdir())
+    with BagWriter(first) as writer:
+        writer.write("/x", Float64(data=1.0), 1)
+    second = fresh_bag_dir(tmp_path, "rig", when_s)
+    assert second.name == f"{stamp}_2"
+    with BagWriter(second) as writer:
+        writer.write("/x", Float64(data=2.0), 1)
+    barrier = threading.Barrier(8)
+    made: list[Path] = []
+
+    def make() -> None:
+        barrier.wait()
+        made.append(fresh_bag_dir(tmp_path / "shared", "rig", when_s))
+
+    threads = [threading.Thread(target=make) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(p.name for p in made) == sorted([stamp] + [f"{stamp}_{n}" for n in range(2, 9)])
+
+
+def _frozen_second(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every time.strftime formats one fixed local time (a restart within the same second)."""
+    fixed, real = time.localtime(1_750_000_000), time.strftime
+    monkeypatch.setattr(time, "strftime", lambda fmt, t=None: real(fmt, fixed))
+
+
+def test_node_restarted_in_the_same_second_records_into_a_new_bag(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two rig nodes recording into one bag_dir within one second (a respawn, two namespaces): the second used to
+    fail to start ('bag directory ... already exists and is not empty')."""
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(60, 90)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
+    _frozen_second(monkeypatch)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    nodes = []
+    try:
+        for ns in ("a", "b"):
+            nodes.append(RigNode(context=ctx, namespace=ns, parameter_overrides=[
+                Parameter("record", value=True), Parameter("bag_dir", value=str(tmp_path / "bags"))]))
+    finally:
+        for node in nodes:
+            node.close()
+            node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    names = sorted(p.name for p in (tmp_path / "bags").iterdir())
+    assert len(names) == 2 and names[1] == names[0] + "_2"
+    for name in names:
+        assert has_summary(tmp_path / "bags" / name / f"{name}_0.mcap")
+
+
+def test_flutter_test_started_twice_in_the_same_second_records_twice(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The in-process flutter test names its bag like the node; a second run in the same second failed to start."""
+    import panel_rig.analysis.flutter_test as procedure
+    from panel_rig.config import load_config
+    from panel_rig.flutter_cli import run_in_process
+
+    class Stop(Exception):
+        pass
+
+    def stop(*args: object, **kwargs: object) -> None:
+        raise Stop
+
+    _frozen_second(monkeypatch)
+    monkeypatch.setattr(procedure, "run_procedure", stop)  # the bag is open by then; skip the test points
+    cfg = load_config()
+    for _ in range(2):
+        with pytest.raises(Stop):
+            run_in_process(cfg, bag_dir=tmp_path)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert len(names) == 2 and names[0].startswith("flutter_test_") and names[1] == names[0] + "_2"

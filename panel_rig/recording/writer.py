@@ -188,6 +188,28 @@ def _row_layout(channel_ids: tuple[int, ...], sizes: tuple[int, ...]) -> tuple[n
     return np.frombuffer(b"".join(parts), dtype=np.uint8), at_seq, at_data, at
 
 
+def fresh_bag_dir(parent: Path, prefix: str, when_s: float | None = None) -> Path:
+    """Create and return a new empty bag directory `parent/<prefix>_%Y%m%d_%H%M%S` (local time `when_s`, default
+    now), or, if that exists, the first of `..._2`, `..._3`, ... that does not: a node restarted within the same
+    second, or two nodes sharing `parent`, each get their own (mkdir is atomic: a name taken meanwhile is skipped)."""
+    parent = Path(parent)
+    stamp = time.strftime(f"{prefix}_%Y%m%d_%H%M%S", time.localtime(when_s))
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"cannot create bag directory {parent}: {exc.strerror or exc}") from None
+    for n in range(1, 10000):
+        path = parent / (stamp if n == 1 else f"{stamp}_{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise RecordingError(f"cannot create bag directory {path}: {exc.strerror or exc}") from None
+        return path
+    raise RecordingError(f"no free bag directory name {stamp}_N in {parent}")
+
+
 def _prepare_dir(bag_dir: Path) -> Path:
     """Create the bag directory; refuse a non-empty existing one or one we cannot write."""
     bag_dir = Path(bag_dir)
