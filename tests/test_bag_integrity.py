@@ -250,3 +250,30 @@ def test_panel_length_fallback_is_the_config_default(tmp_path: Path) -> None:
     rec = load_series(tmp_path / "nolen")
     assert rec.length_source == "default" and rec.panel_length_m == PanelConfig().panel_length_m
     assert rec.tip_w_over_L[10] == pytest.approx(0.01 / PanelConfig().panel_length_m)
+
+
+# ------------------------------------------------------------------------------ damaged metadata.yaml
+@pytest.mark.parametrize("text", ["garbage: [", "rosbag2_bagfile_information: 7\n"])
+def test_damaged_metadata_yaml_is_named_and_rebuilt(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    text: str) -> None:
+    """An unparsable metadata.yaml made a good bag unreadable: analyze and recover printed a multi-line YAML
+    parser error, and recover did not rebuild it. Now: one line naming the file and `bag recover`; recover keeps
+    it as metadata.yaml.broken and rebuilds metadata.yaml from the .mcap."""
+    import yaml
+
+    bag, path = _copy(tmp_path)
+    original = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    (bag / "metadata.yaml").write_text(text)
+    line = _refused(bag, capsys)
+    assert f"{bag / 'metadata.yaml'}" in line
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 2 and "metadata.yaml" in out[0] and "metadata.yaml.broken" in out[0], out
+    assert "already complete" in out[1]
+    assert (bag / "metadata.yaml.broken").read_text() == text
+    rebuilt = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    for key in ("message_count", "topics_with_message_count", "relative_file_paths", "starting_time", "duration"):
+        assert rebuilt[key] == original[key], key
+    assert sum(_rosbags_counts(bag).values()) == _reference_total()
+    assert analyze_main([str(bag), "--json"]) == 0
+    capsys.readouterr()

@@ -18,3 +18,7 @@ class CorruptBagError(RecordingError):
     def __init__(self, message: str, scan: Any = None) -> None:
         super().__init__(message)
         self.scan = scan
+
+
+class MetadataError(RecordingError):
+    """The bag's metadata.yaml cannot be parsed or is not rosbag2 metadata; `panel-rig bag recover` rebuilds it."""

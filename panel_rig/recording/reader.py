@@ -22,9 +22,14 @@ def find_mcap(bag_dir: Path) -> Path:
         raise RecordingError(f"{bag_dir} is not a bag directory")
     if (bag_dir / METADATA_FILE).is_file():
         files = read_metadata(bag_dir).get("relative_file_paths") or []
-        if files and (bag_dir / files[0]).is_file():
+        if isinstance(files, list) and files and isinstance(files[0], str) and (bag_dir / files[0]).is_file():
             return bag_dir / files[0]
-    candidates = sorted(bag_dir.glob("*.mcap"))
+    return single_mcap(bag_dir)
+
+
+def single_mcap(bag_dir: Path) -> Path:
+    """The one `*.mcap` file in `bag_dir` (metadata.yaml not consulted)."""
+    candidates = sorted(Path(bag_dir).glob("*.mcap"))
     if len(candidates) != 1:
         raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}")
     return candidates[0]

@@ -20,15 +20,16 @@ import yaml
 from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
-from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.errors import MetadataError, RecordingError
 from panel_rig.recording.integrity import McapScan, scan_mcap
 from panel_rig.recording.metadata import (
+    METADATA_FILE,
     BagSummary,
     TopicInfo,
     dump_metadata,
     write_metadata,
 )
-from panel_rig.recording.reader import find_mcap
+from panel_rig.recording.reader import find_mcap, single_mcap
 from panel_rig.recording.writer import (
     LIBRARY,
     PARAMETERS_KEY,
@@ -55,6 +56,7 @@ class RecoverReport:
     dropped_chunks: int = 0
     dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
     dropped_topic_counts: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what was cleaned up first (damaged metadata.yaml, stale output)
 
     def line(self) -> str:
         """One-line human summary."""
@@ -72,8 +74,8 @@ class RecoverReport:
         return text + f"; original kept as {self.broken_path}"
 
     def lines(self) -> list[str]:
-        """The summary line, then one line per dropped chunk or byte range."""
-        return [self.line(), *(f"  dropped {d}" for d in self.dropped)]
+        """The notes, the summary line, then one line per dropped chunk or byte range."""
+        return [*self.notes, self.line(), *(f"  dropped {d}" for d in self.dropped)]
 
 
 def _topic_info(channel: Channel, schema: Schema) -> TopicInfo:
@@ -145,16 +147,26 @@ def _free_name(path: Path) -> Path:
 
 
 def recover_bag(bag_dir: Path) -> RecoverReport:
-    """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data."""
+    """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data.
+
+    A damaged metadata.yaml is kept as metadata.yaml.broken and rebuilt."""
     bag_dir = Path(bag_dir)
-    mcap_path = find_mcap(bag_dir)
+    notes: list[str] = []
+    try:
+        mcap_path, bad_metadata = find_mcap(bag_dir), None
+    except MetadataError as exc:
+        mcap_path, bad_metadata = single_mcap(bag_dir), exc
     scan = scan_mcap(mcap_path)
     if not scan.header_ok and not scan.chunks:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
+    if bad_metadata is not None:
+        damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
+        os.replace(bag_dir / METADATA_FILE, damaged)
+        notes.append(f"{bag_dir / METADATA_FILE} was unreadable: kept as {damaged.name}, rebuilt from {mcap_path.name}")
     if scan.ok:
-        if not (bag_dir / "metadata.yaml").is_file():
+        if not (bag_dir / METADATA_FILE).is_file():
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
-        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages))
+        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages), notes=notes)
     summary = BagSummary(file_name=mcap_path.name)
     tmp = _free_name(mcap_path.with_name(mcap_path.name + ".recovering"))
     try:
@@ -170,7 +182,7 @@ def recover_bag(bag_dir: Path) -> RecoverReport:
         bag_dir=bag_dir, mcap_path=mcap_path, was_complete=False, broken_path=broken,
         messages=written, chunks=sum(1 for c in scan.chunks if c.ok),
         topic_counts={t.name: t.message_count for t in summary.topics if t.message_count},
-        skipped_messages=skipped,
+        skipped_messages=skipped, notes=notes,
     )
     for p in scan.problems:
         if scan.truncated and p is scan.problems[-1] and "file ends" in p.what:
