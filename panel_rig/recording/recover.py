@@ -6,10 +6,12 @@ tail is dropped. Every message of the intact chunks is written into a new comple
 channels from the intact chunks, or from the summary if its CRC holds); what was dropped (chunks,
 their byte offsets, time ranges and message counts, unreadable byte ranges) is reported. The
 original file is kept as `<file>.broken`; the new one takes its name and metadata.yaml is rewritten.
+A bag whose lock is held (see :mod:`panel_rig.recording.lock`) is still being recorded and is not touched.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import sys
@@ -20,8 +22,9 @@ import yaml
 from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
-from panel_rig.recording.errors import MetadataError, RecordingError
+from panel_rig.recording.errors import BagInUseError, MetadataError, RecordingError
 from panel_rig.recording.integrity import McapScan, scan_mcap
+from panel_rig.recording.lock import BagLock, lock_holder
 from panel_rig.recording.metadata import (
     METADATA_FILE,
     BagSummary,
@@ -146,11 +149,40 @@ def _free_name(path: Path) -> Path:
     raise RecordingError(f"too many old copies next to {path}")
 
 
+def _lock(bag_dir: Path) -> BagLock | None:
+    """Hold the bag's lock while recovering (a second recover, or a writer, is refused); None in a directory we
+    cannot write (then nothing there is changed either, unless a write fails with its own error)."""
+    holder = lock_holder(bag_dir)  # creates nothing: a live bag is not touched at all
+    if holder is not None:
+        raise BagInUseError(f"{bag_dir} is {holder.describe()}; not touched (recover it once that has stopped)",
+                            holder.pid)
+    try:
+        return BagLock(bag_dir, "recover")
+    except BagInUseError as exc:
+        raise BagInUseError(f"{exc}; not touched (recover it once that has stopped)", exc.pid) from None
+    except OSError as exc:
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            return None
+        raise
+
+
 def recover_bag(bag_dir: Path) -> RecoverReport:
     """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data.
 
-    A damaged metadata.yaml is kept as metadata.yaml.broken and rebuilt."""
+    Refuses (BagInUseError, nothing touched) a bag whose lock is held: it is still being recorded. A damaged
+    metadata.yaml is kept as metadata.yaml.broken and rebuilt."""
     bag_dir = Path(bag_dir)
+    if not bag_dir.is_dir():
+        raise RecordingError(f"{bag_dir} is not a bag directory")
+    lock = _lock(bag_dir)
+    try:
+        return _recover_locked(bag_dir)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _recover_locked(bag_dir: Path) -> RecoverReport:
     notes: list[str] = []
     try:
         mcap_path, bad_metadata = find_mcap(bag_dir), None
