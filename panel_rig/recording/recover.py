@@ -14,7 +14,11 @@ from __future__ import annotations
 import errno
 import json
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -149,6 +153,25 @@ def _free_name(path: Path) -> Path:
     raise RecordingError(f"too many old copies next to {path}")
 
 
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) until the block is done, then raise it (main thread only; elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            if callable(previous):
+                previous(signal.SIGINT, None)
+            elif previous != signal.SIG_IGN:
+                raise KeyboardInterrupt
+
+
 def _lock(bag_dir: Path) -> BagLock | None:
     """Hold the bag's lock while recovering (a second recover, or a writer, is refused); None in a directory we
     cannot write (then nothing there is changed either, unless a write fails with its own error)."""
@@ -170,7 +193,8 @@ def recover_bag(bag_dir: Path) -> RecoverReport:
     """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data.
 
     Refuses (BagInUseError, nothing touched) a bag whose lock is held: it is still being recorded. A damaged
-    metadata.yaml is kept as metadata.yaml.broken and rebuilt."""
+    metadata.yaml is kept as metadata.yaml.broken and rebuilt; a partial `<file>.recovering` left by an
+    interrupted recover is removed; this run's own partial output is removed if it fails or is interrupted."""
     bag_dir = Path(bag_dir)
     if not bag_dir.is_dir():
         raise RecordingError(f"{bag_dir} is not a bag directory")
@@ -195,21 +219,36 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
         os.replace(bag_dir / METADATA_FILE, damaged)
         notes.append(f"{bag_dir / METADATA_FILE} was unreadable: kept as {damaged.name}, rebuilt from {mcap_path.name}")
+    for stale in sorted(mcap_path.parent.glob(mcap_path.name + ".recovering*")):
+        stale.unlink()
+        notes.append(f"removed {stale.name}, the partial output of an interrupted recover")
     if scan.ok:
         if not (bag_dir / METADATA_FILE).is_file():
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
         return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages), notes=notes)
     summary = BagSummary(file_name=mcap_path.name)
-    tmp = _free_name(mcap_path.with_name(mcap_path.name + ".recovering"))
+    tmp = mcap_path.with_name(mcap_path.name + ".recovering")
     try:
         written, skipped = _write_recovered(scan, tmp, summary)
-    except OSError as exc:
+    except BaseException as exc:  # an error or Ctrl-C: leave no partial output behind
         tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
+        if isinstance(exc, OSError):
+            raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
+        raise
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
-    os.replace(mcap_path, broken)
-    os.replace(tmp, mcap_path)
-    write_metadata(bag_dir, summary)
+    with _sigint_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
+        try:
+            os.replace(mcap_path, broken)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        try:
+            os.replace(tmp, mcap_path)
+        except BaseException:
+            os.replace(broken, mcap_path)
+            tmp.unlink(missing_ok=True)
+            raise
+        write_metadata(bag_dir, summary)
     report = RecoverReport(
         bag_dir=bag_dir, mcap_path=mcap_path, was_complete=False, broken_path=broken,
         messages=written, chunks=sum(1 for c in scan.chunks if c.ok),
