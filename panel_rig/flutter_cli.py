@@ -119,9 +119,9 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     sinks: list[Any] = []
     writer = None
     if bag_dir is not None:
-        from panel_rig.recording import BagWriter
+        from panel_rig.recording import BagWriter, fresh_bag_dir
 
-        writer = BagWriter(Path(bag_dir) / time.strftime("flutter_test_%Y%m%d_%H%M%S"))
+        writer = BagWriter(fresh_bag_dir(Path(bag_dir), "flutter_test"))
         from panel_rig.config import SCHEMA
 
         # the run's configuration under its parameter keys, so a replay rebuilds the same model

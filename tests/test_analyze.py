@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import signal
 import subprocess
 import sys
@@ -167,17 +168,22 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         writer.write("/rig/airspeed_cmd", Float64(data=3.0), 1, qos="reliable")
     assert main([str(tmp_path / "notip")]) == 2
     assert "no tip_displacement topic" in _one_error_line(capsys)
-    # a recording without summary (killed writer): point at `bag recover`
-    writer = BagWriter(tmp_path / "killed")
+    # a recording without summary: still being written (its lock is held): say so; a killed writer's (a copy,
+    # whose lock nobody holds): point at `bag recover`
+    writer = BagWriter(tmp_path / "live")
     tip = PointStamped()
     for k in range(50):
         writer.write("/rig/tip_displacement", tip, k + 1)
     writer.flush()
     try:
-        assert main([str(tmp_path / "killed")]) == 2
-        assert "panel-rig bag recover" in _one_error_line(capsys)
+        assert main([str(tmp_path / "live")]) == 2
+        line = _one_error_line(capsys)
+        assert "still being recorded" in line and "bag recover" not in line
+        shutil.copytree(tmp_path / "live", tmp_path / "killed")
     finally:
         writer.close()
+    assert main([str(tmp_path / "killed")]) == 2
+    assert "panel-rig bag recover" in _one_error_line(capsys)
     with pytest.raises(SystemExit) as exc:
         main([])
     assert exc.value.code == 2

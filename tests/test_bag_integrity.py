@@ -5,6 +5,7 @@ Every case works on a copy of the reference bag in tmp_path."""
 from __future__ import annotations
 
 import ast
+import os
 import random
 import shutil
 import subprocess
@@ -250,3 +251,97 @@ def test_panel_length_fallback_is_the_config_default(tmp_path: Path) -> None:
     rec = load_series(tmp_path / "nolen")
     assert rec.length_source == "default" and rec.panel_length_m == PanelConfig().panel_length_m
     assert rec.tip_w_over_L[10] == pytest.approx(0.01 / PanelConfig().panel_length_m)
+
+
+# ------------------------------------------------------------------------------ interrupted recover
+def test_interrupted_recover_leaves_no_partial_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C while the recovered copy is written used to leave `<file>.recovering` behind (only an OSError removed
+    it): now the bag is left as it was, and the next run works."""
+    import panel_rig.recording.recover as recover
+
+    bag, path = _copy(tmp_path)
+    _flip_bit(path, path.stat().st_size // 2)
+    before = {p.name: p.read_bytes() for p in bag.iterdir()}
+
+    class InterruptedWriter(recover.Writer):
+        def add_message(self, *args: object, **kwargs: object) -> None:
+            if getattr(self, "_n", 0) == 1000:
+                raise KeyboardInterrupt
+            self._n = getattr(self, "_n", 0) + 1
+            super().add_message(*args, **kwargs)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(recover, "Writer", InterruptedWriter)
+        with pytest.raises(KeyboardInterrupt):
+            recover_bag(bag)
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == before  # no .recovering, no lock file
+    report = recover_bag(bag)
+    assert report.dropped_chunks == 1 and not report.notes
+    assert sorted(p.name for p in bag.iterdir()) == sorted([*before, MCAP + ".broken"])
+
+
+def test_ctrl_c_while_the_recovered_file_is_put_in_place_is_held(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Ctrl-C between renaming the original to .broken and the recovered copy into its place would leave a bag
+    without its .mcap: it is held until the recovered bag and its metadata.yaml are in place."""
+    import signal
+
+    import panel_rig.recording.recover as recover
+
+    bag, path = _copy(tmp_path)
+    _flip_bit(path, path.stat().st_size // 2)
+    real_replace = os.replace
+
+    def replace_then_ctrl_c(src: object, dst: object) -> None:
+        real_replace(src, dst)
+        if str(dst).endswith(".broken"):
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(recover.os, "replace", replace_then_ctrl_c)
+        with pytest.raises(KeyboardInterrupt):
+            recover_bag(bag)
+    assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
+    assert scan_mcap(path).ok and _mcap_count(path)[0] == sum(_rosbags_counts(bag).values())
+
+
+def test_stale_recovering_file_of_a_killed_recover_is_removed(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A recover killed mid-write leaves `<file>.recovering`; the next run used to write `.recovering.1` and leave
+    the stale one in place. Now it is removed, in one line."""
+    bag, path = _copy(tmp_path)
+    _truncate(path, 0.5)
+    (bag / (MCAP + ".recovering")).write_bytes(path.read_bytes()[:5000])  # what a killed recover leaves
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert f"removed {MCAP}.recovering" in out[0] and "interrupted recover" in out[0], out
+    assert "recovered" in out[1]
+    assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
+    assert _mcap_count(path)[0] == sum(_rosbags_counts(bag).values()) > 0
+
+
+# ------------------------------------------------------------------------------ damaged metadata.yaml
+@pytest.mark.parametrize("text", ["garbage: [", "rosbag2_bagfile_information: 7\n"])
+def test_damaged_metadata_yaml_is_named_and_rebuilt(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    text: str) -> None:
+    """An unparsable metadata.yaml made a good bag unreadable: analyze and recover printed a multi-line YAML
+    parser error, and recover did not rebuild it. Now: one line naming the file and `bag recover`; recover keeps
+    it as metadata.yaml.broken and rebuilds metadata.yaml from the .mcap."""
+    import yaml
+
+    bag, path = _copy(tmp_path)
+    original = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    (bag / "metadata.yaml").write_text(text)
+    line = _refused(bag, capsys)
+    assert f"{bag / 'metadata.yaml'}" in line
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 2 and "metadata.yaml" in out[0] and "metadata.yaml.broken" in out[0], out
+    assert "already complete" in out[1]
+    assert (bag / "metadata.yaml.broken").read_text() == text
+    rebuilt = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    for key in ("message_count", "topics_with_message_count", "relative_file_paths", "starting_time", "duration"):
+        assert rebuilt[key] == original[key], key
+    assert sum(_rosbags_counts(bag).values()) == _reference_total()
+    assert analyze_main([str(bag), "--json"]) == 0
+    capsys.readouterr()

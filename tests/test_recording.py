@@ -475,3 +475,182 @@ def test_concurrent_writers_threads(tmp_path: Path) -> None:
             t.join()
     counts = Counter(topic for topic, _, _, _ in read_bag(tmp_path / "mt"))
     assert counts == {f"/t{i}": n_each for i in range(n_threads)}
+
+
+# ------------------------------------------------------------------ 6. a bag that is still being recorded
+def _listing(bag_dir: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(bag_dir.iterdir())}
+
+
+def test_recover_and_analyze_refuse_a_bag_being_recorded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`bag recover` on a live bag used to rename the .mcap the writer was still writing (to .broken) and write a
+    'recovered' copy; the writer's metadata.yaml then counted messages the .mcap did not hold. Now the writer holds
+    the bag's lock: recover refuses in one line (exit 2) and touches nothing, analyze says it is being recorded."""
+    from rosbags.highlevel import AnyReader
+
+    from panel_rig.cli import analyze_main
+    from panel_rig.recording import verify_bag
+
+    bag_dir = tmp_path / "live"
+    writer = BagWriter(bag_dir, flush_period_s=0.05)
+    for k in range(500):
+        writer.write("/rig/tip_displacement", PointStamped(), T0_NS + k)
+    writer.flush()
+    before = _listing(bag_dir)
+    assert main_bag_recover(str(bag_dir)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "being recorded" in err[0] and f"PID {os.getpid()}" in err[0], err
+    assert _listing(bag_dir) == before  # nothing renamed, nothing written
+    with pytest.raises(RecordingError, match="being recorded"):
+        verify_bag(bag_dir)
+    assert analyze_main([str(bag_dir)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "still being recorded" in err[0] and "bag recover" not in err[0], err
+    for k in range(500, 1000):
+        writer.write("/rig/tip_displacement", PointStamped(), T0_NS + k)
+    writer.close()
+    assert sorted(p.name for p in bag_dir.iterdir()) == ["live_0.mcap", "metadata.yaml"]  # no lock file left
+    info = read_metadata(bag_dir)
+    assert info["relative_file_paths"] == ["live_0.mcap"] and info["message_count"] == 1000
+    assert summary_counts(bag_dir / "live_0.mcap") == {"/rig/tip_displacement": 1000}
+    with AnyReader([bag_dir]) as reader:
+        assert reader.message_count == 1000
+    assert recover_bag(bag_dir).was_complete
+
+
+_LIVE_CHILD = textwrap.dedent(
+    """
+    import sys
+    from std_msgs.msg import Float64
+    from panel_rig.recording import BagWriter
+    w = BagWriter(sys.argv[1])
+    for n in range(300):
+        w.write("/rig/airspeed_cmd", Float64(data=float(n)), n + 1, qos="reliable")
+    w.flush()
+    print("ready", flush=True)
+    sys.stdin.read()  # until the test kills it
+    """
+)
+
+
+def test_lock_of_a_killed_recorder_blocks_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The lock is held by the recording process (named by PID) and released by the OS when it is SIGKILLed: the
+    lock file it leaves blocks neither analyze's 'recover it' advice nor `bag recover`, which removes it."""
+    from rosbags.highlevel import AnyReader
+
+    from panel_rig.cli import analyze_main
+
+    bag_dir = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    child = subprocess.Popen([sys.executable, "-c", _LIVE_CHILD, str(bag_dir)], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert child.stdout.readline().strip() == "ready", child.stderr.read()
+        assert main_bag_recover(str(bag_dir)) == 2
+        err = capsys.readouterr().err
+        assert "being recorded" in err and f"PID {child.pid}" in err and err.count("\n") == 1, err
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+    assert (bag_dir / ".panel_rig.lock").exists()  # left behind, but nobody holds it
+    assert analyze_main([str(bag_dir)]) == 2
+    err = capsys.readouterr().err
+    assert "no summary" in err and "panel-rig bag recover" in err and "being recorded" not in err, err
+    assert main_bag_recover(str(bag_dir)) == 0
+    assert "recovered 300 messages" in capsys.readouterr().out
+    assert sorted(p.name for p in bag_dir.iterdir()) == ["killed_0.mcap", "killed_0.mcap.broken", "metadata.yaml"]
+    with AnyReader([bag_dir]) as reader:
+        assert reader.message_count == 300
+
+
+# ------------------------------------------------------------------ 7. bag directory names
+def test_fresh_bag_dir_never_reuses_a_name(tmp_path: Path) -> None:
+    """Bag directories were named to the second: a second recorder in the same second failed to start
+    ('already exists and is not empty'). The same second now gives _2, _3, ..., also to racing threads."""
+    from panel_rig.recording import fresh_bag_dir
+
+    when_s = 1_750_000_000.0
+    stamp = time.strftime("rig_%Y%m%d_%H%M%S", time.localtime(when_s))
+    first = fresh_bag_dir(tmp_path, "rig", when_s)
+    assert first == tmp_path / stamp and first.is_dir() and not any(first.iterdir())
+    with BagWriter(first) as writer:
+        writer.write("/x", Float64(data=1.0), 1)
+    second = fresh_bag_dir(tmp_path, "rig", when_s)
+    assert second.name == f"{stamp}_2"
+    with BagWriter(second) as writer:
+        writer.write("/x", Float64(data=2.0), 1)
+    barrier = threading.Barrier(8)
+    made: list[Path] = []
+
+    def make() -> None:
+        barrier.wait()
+        made.append(fresh_bag_dir(tmp_path / "shared", "rig", when_s))
+
+    threads = [threading.Thread(target=make) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(p.name for p in made) == sorted([stamp] + [f"{stamp}_{n}" for n in range(2, 9)])
+
+
+def _frozen_second(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every time.strftime formats one fixed local time (a restart within the same second)."""
+    fixed, real = time.localtime(1_750_000_000), time.strftime
+    monkeypatch.setattr(time, "strftime", lambda fmt, t=None: real(fmt, fixed))
+
+
+def test_node_restarted_in_the_same_second_records_into_a_new_bag(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two rig nodes recording into one bag_dir within one second (a respawn, two namespaces): the second used to
+    fail to start ('bag directory ... already exists and is not empty')."""
+    import random
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randint(60, 90)))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
+    _frozen_second(monkeypatch)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    nodes = []
+    try:
+        for ns in ("a", "b"):
+            nodes.append(RigNode(context=ctx, namespace=ns, parameter_overrides=[
+                Parameter("record", value=True), Parameter("bag_dir", value=str(tmp_path / "bags"))]))
+    finally:
+        for node in nodes:
+            node.close()
+            node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    names = sorted(p.name for p in (tmp_path / "bags").iterdir())
+    assert len(names) == 2 and names[1] == names[0] + "_2"
+    for name in names:
+        assert has_summary(tmp_path / "bags" / name / f"{name}_0.mcap")
+
+
+def test_flutter_test_started_twice_in_the_same_second_records_twice(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The in-process flutter test names its bag like the node; a second run in the same second failed to start."""
+    import panel_rig.analysis.flutter_test as procedure
+    from panel_rig.config import load_config
+    from panel_rig.flutter_cli import run_in_process
+
+    class Stop(Exception):
+        pass
+
+    def stop(*args: object, **kwargs: object) -> None:
+        raise Stop
+
+    _frozen_second(monkeypatch)
+    monkeypatch.setattr(procedure, "run_procedure", stop)  # the bag is open by then; skip the test points
+    cfg = load_config()
+    for _ in range(2):
+        with pytest.raises(Stop):
+            run_in_process(cfg, bag_dir=tmp_path)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert len(names) == 2 and names[0].startswith("flutter_test_") and names[1] == names[0] + "_2"

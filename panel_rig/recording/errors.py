@@ -18,3 +18,15 @@ class CorruptBagError(RecordingError):
     def __init__(self, message: str, scan: Any = None) -> None:
         super().__init__(message)
         self.scan = scan
+
+
+class BagInUseError(RecordingError):
+    """Another process holds the bag's lock: it is being recorded (or recovered); `pid` if known."""
+
+    def __init__(self, message: str, pid: int | None = None) -> None:
+        super().__init__(message)
+        self.pid = pid
+
+
+class MetadataError(RecordingError):
+    """The bag's metadata.yaml cannot be parsed or is not rosbag2 metadata; `panel-rig bag recover` rebuilds it."""

@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.errors import MetadataError, RecordingError
 
 METADATA_FILE = "metadata.yaml"
 METADATA_VERSION = 9
@@ -108,12 +108,27 @@ def write_metadata(bag_dir: Path, summary: BagSummary) -> Path:
 
 
 def read_metadata(bag_dir: Path) -> dict[str, Any]:
-    """The `rosbag2_bagfile_information` mapping of a bag directory."""
+    """The `rosbag2_bagfile_information` mapping of a bag directory.
+
+    MetadataError (one line, naming `panel-rig bag recover`) if the file does not parse or is not rosbag2
+    metadata; RecordingError if it cannot be read."""
     path = Path(bag_dir) / METADATA_FILE
+    hint = f"run `panel-rig bag recover {bag_dir}` to rebuild it from the .mcap"
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise RecordingError(f"cannot read {path}: {exc}") from None
-    if not isinstance(doc, dict) or ROOT_KEY not in doc:
-        raise RecordingError(f"{path} is not rosbag2 metadata (no {ROOT_KEY})")
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise MetadataError(f"{path} is damaged ({_one_line(exc)}); {hint}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get(ROOT_KEY), dict):
+        raise MetadataError(f"{path} is not rosbag2 metadata (no {ROOT_KEY} mapping); {hint}")
     return doc[ROOT_KEY]
+
+
+def _one_line(exc: Exception) -> str:
+    """A YAML (or decoding) error in one line: `expected the node content ... at line 1, column 11`."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None)
+    if problem and mark is not None:
+        return f"{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    return " ".join(str(exc).split()) or type(exc).__name__

@@ -10,8 +10,9 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from panel_rig.recording.errors import CorruptBagError, RecordingError
+from panel_rig.recording.errors import BagInUseError, CorruptBagError, RecordingError
 from panel_rig.recording.integrity import McapScan, scan_mcap
+from panel_rig.recording.lock import lock_holder
 from panel_rig.recording.metadata import METADATA_FILE, read_metadata
 
 
@@ -22,9 +23,14 @@ def find_mcap(bag_dir: Path) -> Path:
         raise RecordingError(f"{bag_dir} is not a bag directory")
     if (bag_dir / METADATA_FILE).is_file():
         files = read_metadata(bag_dir).get("relative_file_paths") or []
-        if files and (bag_dir / files[0]).is_file():
+        if isinstance(files, list) and files and isinstance(files[0], str) and (bag_dir / files[0]).is_file():
             return bag_dir / files[0]
-    candidates = sorted(bag_dir.glob("*.mcap"))
+    return single_mcap(bag_dir)
+
+
+def single_mcap(bag_dir: Path) -> Path:
+    """The one `*.mcap` file in `bag_dir` (metadata.yaml not consulted)."""
+    candidates = sorted(Path(bag_dir).glob("*.mcap"))
     if len(candidates) != 1:
         raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}")
     return candidates[0]
@@ -60,6 +66,7 @@ def read_bag(
     except RecordingError:
         raise
     except Exception as exc:  # noqa: BLE001 - corrupt bytes fail anywhere in the parser/decoder
+        _refuse_live(bag_dir)
         raise CorruptBagError(
             f"cannot read {path} ({type(exc).__name__}); run `panel-rig bag recover {bag_dir}`"
         ) from None
@@ -69,17 +76,26 @@ def verify_bag(bag_dir: Path) -> McapScan:
     """Scan the bag's MCAP (every chunk CRC, summary, index); raise CorruptBagError if not intact.
 
     The error is one line: the first problem (chunk index, byte offset, time range), how many more,
-    and the `panel-rig bag recover` command that rebuilds the bag from its intact chunks.
+    and the `panel-rig bag recover` command that rebuilds the bag from its intact chunks; for a bag whose
+    lock is held (still being recorded), BagInUseError saying so.
     """
     path = find_mcap(bag_dir)
     scan = scan_mcap(path)
     if not scan.ok:
+        _refuse_live(bag_dir)
         if scan.truncated and not scan.bad_chunks:
             what = f"{path} has no summary (recorder killed?)"
         else:
             what = scan.summary_line().replace(f"{path}: ", f"{path} is corrupt: ", 1)
         raise CorruptBagError(f"{what}; run `panel-rig bag recover {bag_dir}`", scan)
     return scan
+
+
+def _refuse_live(bag_dir: Path) -> None:
+    """Raise BagInUseError if a process holds the bag's lock (its MCAP has no summary yet: not damaged)."""
+    holder = lock_holder(bag_dir)
+    if holder is not None:
+        raise BagInUseError(f"{bag_dir} is still {holder.describe()}: read it when that has finished", holder.pid)
 
 
 def topic_counts(bag_dir: Path) -> dict[str, int]:

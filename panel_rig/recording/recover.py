@@ -6,13 +6,19 @@ tail is dropped. Every message of the intact chunks is written into a new comple
 channels from the intact chunks, or from the summary if its CRC holds); what was dropped (chunks,
 their byte offsets, time ranges and message counts, unreadable byte ranges) is reported. The
 original file is kept as `<file>.broken`; the new one takes its name and metadata.yaml is rewritten.
+A bag whose lock is held (see :mod:`panel_rig.recording.lock`) is still being recorded and is not touched.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,15 +26,17 @@ import yaml
 from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
-from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.errors import BagInUseError, MetadataError, RecordingError
 from panel_rig.recording.integrity import McapScan, scan_mcap
+from panel_rig.recording.lock import BagLock, lock_holder
 from panel_rig.recording.metadata import (
+    METADATA_FILE,
     BagSummary,
     TopicInfo,
     dump_metadata,
     write_metadata,
 )
-from panel_rig.recording.reader import find_mcap
+from panel_rig.recording.reader import find_mcap, single_mcap
 from panel_rig.recording.writer import (
     LIBRARY,
     PARAMETERS_KEY,
@@ -55,6 +63,7 @@ class RecoverReport:
     dropped_chunks: int = 0
     dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
     dropped_topic_counts: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what was cleaned up first (damaged metadata.yaml, stale output)
 
     def line(self) -> str:
         """One-line human summary."""
@@ -72,8 +81,8 @@ class RecoverReport:
         return text + f"; original kept as {self.broken_path}"
 
     def lines(self) -> list[str]:
-        """The summary line, then one line per dropped chunk or byte range."""
-        return [self.line(), *(f"  dropped {d}" for d in self.dropped)]
+        """The notes, the summary line, then one line per dropped chunk or byte range."""
+        return [*self.notes, self.line(), *(f"  dropped {d}" for d in self.dropped)]
 
 
 def _topic_info(channel: Channel, schema: Schema) -> TopicInfo:
@@ -144,33 +153,107 @@ def _free_name(path: Path) -> Path:
     raise RecordingError(f"too many old copies next to {path}")
 
 
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) until the block is done, then raise it (main thread only; elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            if callable(previous):
+                previous(signal.SIGINT, None)
+            elif previous != signal.SIG_IGN:
+                raise KeyboardInterrupt
+
+
+def _lock(bag_dir: Path) -> BagLock | None:
+    """Hold the bag's lock while recovering (a second recover, or a writer, is refused); None in a directory we
+    cannot write (then nothing there is changed either, unless a write fails with its own error)."""
+    holder = lock_holder(bag_dir)  # creates nothing: a live bag is not touched at all
+    if holder is not None:
+        raise BagInUseError(f"{bag_dir} is {holder.describe()}; not touched (recover it once that has stopped)",
+                            holder.pid)
+    try:
+        return BagLock(bag_dir, "recover")
+    except BagInUseError as exc:
+        raise BagInUseError(f"{exc}; not touched (recover it once that has stopped)", exc.pid) from None
+    except OSError as exc:
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            return None
+        raise
+
+
 def recover_bag(bag_dir: Path) -> RecoverReport:
-    """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data."""
+    """Make `bag_dir` a complete, intact, readable bag again; never deletes the original data.
+
+    Refuses (BagInUseError, nothing touched) a bag whose lock is held: it is still being recorded. A damaged
+    metadata.yaml is kept as metadata.yaml.broken and rebuilt; a partial `<file>.recovering` left by an
+    interrupted recover is removed; this run's own partial output is removed if it fails or is interrupted."""
     bag_dir = Path(bag_dir)
-    mcap_path = find_mcap(bag_dir)
+    if not bag_dir.is_dir():
+        raise RecordingError(f"{bag_dir} is not a bag directory")
+    lock = _lock(bag_dir)
+    try:
+        return _recover_locked(bag_dir)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _recover_locked(bag_dir: Path) -> RecoverReport:
+    notes: list[str] = []
+    try:
+        mcap_path, bad_metadata = find_mcap(bag_dir), None
+    except MetadataError as exc:
+        mcap_path, bad_metadata = single_mcap(bag_dir), exc
     scan = scan_mcap(mcap_path)
     if not scan.header_ok and not scan.chunks:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
+    if bad_metadata is not None:
+        damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
+        os.replace(bag_dir / METADATA_FILE, damaged)
+        notes.append(f"{bag_dir / METADATA_FILE} was unreadable: kept as {damaged.name}, rebuilt from {mcap_path.name}")
+    for stale in sorted(mcap_path.parent.glob(mcap_path.name + ".recovering*")):
+        stale.unlink()
+        notes.append(f"removed {stale.name}, the partial output of an interrupted recover")
     if scan.ok:
-        if not (bag_dir / "metadata.yaml").is_file():
+        if not (bag_dir / METADATA_FILE).is_file():
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
-        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages))
+        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages), notes=notes)
     summary = BagSummary(file_name=mcap_path.name)
-    tmp = _free_name(mcap_path.with_name(mcap_path.name + ".recovering"))
+    tmp = mcap_path.with_name(mcap_path.name + ".recovering")
     try:
         written, skipped = _write_recovered(scan, tmp, summary)
-    except OSError as exc:
+    except BaseException as exc:  # an error or Ctrl-C: leave no partial output behind
         tmp.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
+        if isinstance(exc, OSError):
+            raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
+        raise
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
-    os.replace(mcap_path, broken)
-    os.replace(tmp, mcap_path)
-    write_metadata(bag_dir, summary)
+    with _sigint_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
+        try:
+            os.replace(mcap_path, broken)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        try:
+            os.replace(tmp, mcap_path)
+        except BaseException:
+            os.replace(broken, mcap_path)
+            tmp.unlink(missing_ok=True)
+            raise
+        write_metadata(bag_dir, summary)
     report = RecoverReport(
         bag_dir=bag_dir, mcap_path=mcap_path, was_complete=False, broken_path=broken,
         messages=written, chunks=sum(1 for c in scan.chunks if c.ok),
         topic_counts={t.name: t.message_count for t in summary.topics if t.message_count},
-        skipped_messages=skipped,
+        skipped_messages=skipped, notes=notes,
     )
     for p in scan.problems:
         if scan.truncated and p is scan.problems[-1] and "file ends" in p.what:

@@ -21,6 +21,7 @@ from mcap.writer import CompressionType, Writer
 from panel_rig.recording import schemas
 from panel_rig.recording.cdr import ends_with_empty_sequence, trim_trailing_padding
 from panel_rig.recording.errors import RecordingError
+from panel_rig.recording.lock import BagLock
 from panel_rig.recording.metadata import (
     BagSummary,
     TopicInfo,
@@ -188,6 +189,28 @@ def _row_layout(channel_ids: tuple[int, ...], sizes: tuple[int, ...]) -> tuple[n
     return np.frombuffer(b"".join(parts), dtype=np.uint8), at_seq, at_data, at
 
 
+def fresh_bag_dir(parent: Path, prefix: str, when_s: float | None = None) -> Path:
+    """Create and return a new empty bag directory `parent/<prefix>_%Y%m%d_%H%M%S` (local time `when_s`, default
+    now), or, if that exists, the first of `..._2`, `..._3`, ... that does not: a node restarted within the same
+    second, or two nodes sharing `parent`, each get their own (mkdir is atomic: a name taken meanwhile is skipped)."""
+    parent = Path(parent)
+    stamp = time.strftime(f"{prefix}_%Y%m%d_%H%M%S", time.localtime(when_s))
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"cannot create bag directory {parent}: {exc.strerror or exc}") from None
+    for n in range(1, 10000):
+        path = parent / (stamp if n == 1 else f"{stamp}_{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise RecordingError(f"cannot create bag directory {path}: {exc.strerror or exc}") from None
+        return path
+    raise RecordingError(f"no free bag directory name {stamp}_N in {parent}")
+
+
 def _prepare_dir(bag_dir: Path) -> Path:
     """Create the bag directory; refuse a non-empty existing one or one we cannot write."""
     bag_dir = Path(bag_dir)
@@ -210,6 +233,8 @@ class BagWriter:
     at least every `flush_period_s` (on the next write, or by a background flusher when idle), so
     a SIGKILL loses at most about one flush period. Thread-safe. Writes after `close()` are
     dropped and counted in `dropped_after_close` (shutdown races in callbacks must not crash).
+    The bag's lock (:mod:`panel_rig.recording.lock`) is held from construction to `close()`, so
+    `bag recover` and the readers see that the bag is still being recorded.
     """
 
     def __init__(
@@ -223,6 +248,10 @@ class BagWriter:
             raise RecordingError("chunk_size_bytes and flush_period_s must be positive")
         self.bag_dir = _prepare_dir(Path(bag_dir))
         self.mcap_path = self.bag_dir / f"{self.bag_dir.name}_0.mcap"
+        try:  # held until close (or the death of this process): `bag recover` and readers see a live bag
+            self._bag_lock = BagLock(self.bag_dir, "record")
+        except OSError as exc:
+            raise RecordingError(f"cannot lock bag directory {self.bag_dir}: {exc.strerror or exc}") from None
         self.flush_period_s = float(flush_period_s)
         self.dropped_after_close = 0
         self._lock = threading.Lock()
@@ -234,7 +263,11 @@ class BagWriter:
         self._channels: dict[str, _Channel] = {}
         self._schema_ids: dict[str, int] = {}
         self._summary = BagSummary(file_name=self.mcap_path.name)
-        self._stream = self._open_stream()
+        try:
+            self._stream = self._open_stream()
+        except BaseException:
+            self._bag_lock.release()
+            raise
         self._writer = Writer(
             self._stream, chunk_size=chunk_size_bytes, compression=CompressionType.NONE
         )
@@ -457,12 +490,15 @@ class BagWriter:
             return
         self._closed = True
         try:
-            self._writer.add_metadata("rosbag2", {"serialized_metadata": dump_metadata(self._summary)})
-            self._writer.finish()
-            self._stream.close()
-        except OSError as exc:
-            raise RecordingError(f"cannot finish {self.mcap_path}: {exc.strerror or exc}") from None
-        write_metadata(self.bag_dir, self._summary)
+            try:
+                self._writer.add_metadata("rosbag2", {"serialized_metadata": dump_metadata(self._summary)})
+                self._writer.finish()
+                self._stream.close()
+            except OSError as exc:
+                raise RecordingError(f"cannot finish {self.mcap_path}: {exc.strerror or exc}") from None
+            write_metadata(self.bag_dir, self._summary)
+        finally:
+            self._bag_lock.release()
 
     def _flush_loop(self) -> None:
         while not self._stop.wait(self.flush_period_s):

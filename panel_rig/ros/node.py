@@ -364,9 +364,9 @@ class RigNode(Node):
             self.get_logger().info(f"rerun sink: {p['rerun']}")
         if p["record"]:
             try:
-                from panel_rig.recording import BagWriter
+                from panel_rig.recording import BagWriter, fresh_bag_dir
 
-                writer = BagWriter(Path(p["bag_dir"]) / time.strftime("rig_%Y%m%d_%H%M%S"))
+                writer = BagWriter(fresh_bag_dir(Path(p["bag_dir"]), "rig"))
                 self._recorders.append(writer)
                 writer.write_parameters({prm.name: prm.value for prm in self._parameters.values()})
             except Exception as exc:  # noqa: BLE001 (RecordingError, OSError, no mcap)
