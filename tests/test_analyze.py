@@ -516,3 +516,23 @@ def test_a_gap_in_the_recording_splits_plateaus_and_is_reported() -> None:
     result = analyze_series(t, 1e-4 * np.sin(2 * np.pi * 5.0 * t), u, {})
     assert result["gaps"] == [{"from_s": pytest.approx(11.998), "to_s": pytest.approx(14.0)}]
     assert result["sample_rate_hz"] == pytest.approx(500.0)
+
+
+def test_an_intact_mcap_of_other_messages_is_not_sent_to_recover(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A valid MCAP with JSON messages: analyze said "run `panel-rig bag recover`", recover said "already complete",
+    and analyze said it again. It is not a ROS 2 recording, and the line says so."""
+    from mcap.writer import Writer
+
+    bag = tmp_path / "foreign"
+    bag.mkdir()
+    with open(bag / "foreign_0.mcap", "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        channel = writer.register_channel("/rig/tip_displacement", "json", writer.register_schema("p", "jsonschema", b"{}"))
+        for k in range(10):
+            writer.add_message(channel, k, json.dumps({"z": 0.1}).encode(), k)
+        writer.finish()
+    assert main([str(bag)]) == 2
+    line = _one_error_line(capsys)
+    assert "not a ROS 2 recording (messages in json, not cdr)" in line and "recover" not in line

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -67,6 +68,11 @@ def read_bag(
         raise
     except Exception as exc:  # noqa: BLE001 - corrupt bytes fail anywhere in the parser/decoder
         _refuse_live(bag_dir)
+        if type(exc).__name__ == "DecoderNotFoundError":  # intact, but not ROS 2 CDR: recover cannot help
+            found = re.search(r"message encoding (\w+)", str(exc))
+            encoding = found[1] if found else "another encoding"
+            raise RecordingError(f"{path}: not a ROS 2 recording (messages in {encoding}, not cdr); panel_rig "
+                                 "reads rosbag2 MCAP") from None
         raise CorruptBagError(
             f"cannot read {path} ({type(exc).__name__}); run `panel-rig bag recover {bag_dir}`"
         ) from None
