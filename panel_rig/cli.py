@@ -663,9 +663,14 @@ def format_table(result: dict[str, Any]) -> str:
     def num(x: float | None) -> str:
         return "-" if x is None else f"{x:.2f}"
 
-    lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
-                 f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
-                 f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
+        lines.append("flutter onset: no plateau was unstable"
+                     + ("" if o["bracket_low_mps"] is None else f" (stable up to {num(o['bracket_low_mps'])} m/s)")
+                     + f"; extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s")
+    else:
+        lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
+                     f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
+                     f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
     ft = result.get("flutter_test")
     if ft and ft["test_points"]:
         lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")

@@ -536,3 +536,17 @@ def test_an_intact_mcap_of_other_messages_is_not_sent_to_recover(tmp_path: Path,
     assert main([str(bag)]) == 2
     line = _one_error_line(capsys)
     assert "not a ROS 2 recording (messages in json, not cdr)" in line and "recover" not in line
+
+
+def test_a_run_without_an_unstable_plateau_reports_no_onset() -> None:
+    """A run that stays stable printed "flutter onset bracket: 0.00 .. - m/s", read as an onset found."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+    from panel_rig.cli import format_table
+
+    plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 10.0, "airspeed_mps": 6.0, "rms_tip_w_over_L": 1e-5,
+               "peak_tip_w_over_L": 3e-5, "dominant_frequency_hz": 26.0, "growth_rate_per_s": -0.5,
+               "status": "decaying"}
+    result = {"bag": "b", "duration_s": 10.0, "samples": 5000, "panel_length_m": 0.27, "panel_length_source": "bag",
+              "plateaus": [plateau], "onset": estimate_onset([plateau])}
+    last = format_table(result).splitlines()[-1]
+    assert last.startswith("flutter onset: no plateau was unstable (stable up to 6.00 m/s)"), last
