@@ -163,7 +163,8 @@ class LinearOscillator:
 @pytest.mark.parametrize(
     ("value", "stamp", "why"),
     [(math.nan, 0.0, "finite"), (math.inf, 0.0, "finite"), (-math.inf, 0.0, "finite"),
-     (2.5, 0.0, "saturation"), ("x", 0.0, "number"), (0.1, math.nan, "stamp"), (0.1, -1.0, "old")],
+     (2.5, 0.0, "saturation"), ("x", 0.0, "number"), (0.1, math.nan, "stamp"), (0.1, -1.0, "old"),
+     (0.1, 2.0**31 - 1, "answers no reading")],  # a stamp of the future was taken, with a latency of 0 ms
 )
 def test_bad_control_commands_are_rejected_and_counted(value: object, stamp: float, why: str) -> None:
     rig = Rig(LinearOscillator(), 1.0, control=ControlSettings())

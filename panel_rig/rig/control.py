@@ -50,10 +50,18 @@ def check_control_force(force_npm: Any, settings: ControlSettings) -> str | None
     return None
 
 
+FUTURE_TOLERANCE_S = 1e-6  # stamps and arrival times are floats of the same simulated clock
+
+
 def check_stamp(stamp_s: Any, arrival_s: float, settings: ControlSettings) -> str | None:
-    """The answered reading's time must be finite and not older than the watchdog timeout."""
+    """The answered reading's time must be finite, not after the command's arrival (no reading of the future was
+    published: a bogus stamp, or a command to a rig restarted since; it was taken with a latency of 0 ms) and not
+    older than the watchdog timeout."""
     if isinstance(stamp_s, bool) or not isinstance(stamp_s, (int, float)) or not math.isfinite(stamp_s):
         return f"command stamp must be finite, got {stamp_s!r}"
+    if stamp_s > arrival_s + FUTURE_TOLERANCE_S:
+        return (f"command stamp {stamp_s:.6f} s is after its arrival at {arrival_s:.6f} s: it answers no reading "
+                "the rig published")
     if arrival_s - stamp_s > settings.timeout_s:
         return (f"command is {1e3 * (arrival_s - stamp_s):.1f} ms old (answers a reading older than "
                 f"control.timeout_s = {settings.timeout_s:g} s)")
