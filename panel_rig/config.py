@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,8 +100,10 @@ class _Spec:
     def check(self, key: str, value: Any) -> Any:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
         if self.kind is float:
+            if isinstance(value, str) and float_from_text(value) is not None:
+                value = float_from_text(value)  # `5e-6`: text to YAML 1.1, a number to rcl and to the reader
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"{key}: expected a number, got {value!r}{_text_number_hint(value)}")
+                raise ConfigError(f"{key}: expected a number, got {value!r}")
             value = float(value)
             if not math.isfinite(value):
                 raise ConfigError(f"{key}: must be finite, got {value!r}")
@@ -249,17 +252,19 @@ def read_params_file(path: str | Path) -> dict[str, Any]:
     return flatten(section)
 
 
-def _text_number_hint(value: Any) -> str:
-    """For a YAML 1.1 text that is a number to anyone else ('5e-6'): how to write it so that YAML reads a number."""
-    try:
-        return f" (YAML 1.1 reads it as text: write {float(value)!r})" if isinstance(value, str) else ""
-    except ValueError:
-        return ""
+_NUMBER_TEXT = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+def float_from_text(text: str) -> float | None:
+    """The number a text of digits spells (``5e-06``, ``1e3``, ``7.06e10``: YAML 1.1 leaves them text, rcl's
+    parameter parser reads them as numbers, and so do we), or None; not Python's wider syntax (``1_0``, ``nan``,
+    ``infinity``)."""
+    return float(text) if _NUMBER_TEXT.fullmatch(text.strip()) else None
 
 
 def parse_override(text: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` with VALUE parsed as a YAML scalar; a number YAML 1.1 leaves as text (``5e-6``, ``1e3``: no
-    dot, or no exponent sign) is the number (on the command line there is no ROS parser to disagree)."""
+    """``KEY=VALUE`` with VALUE parsed as a YAML scalar (a number YAML 1.1 leaves as text, ``5e-6``, is taken as
+    the number by the key's check, :func:`float_from_text`, as from a file)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"--set expects KEY=VALUE, got {text!r}")
@@ -267,11 +272,6 @@ def parse_override(text: str) -> tuple[str, Any]:
         value = yaml.safe_load(raw)
     except yaml.YAMLError:
         raise ConfigError(f"{key.strip()}: cannot parse value {raw!r}") from None
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            pass
     return key.strip(), value
 
 

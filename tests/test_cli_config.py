@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from panel_rig.analysis.published import NATURAL_FREQUENCIES_HZ
-from panel_rig.config import ConfigError, load_config
+from panel_rig.config import ConfigError, config_from_flat, load_config
 
 CLI = [sys.executable, "-m", "panel_rig.cli"]
 
@@ -277,10 +277,15 @@ def test_child_programs_run_this_install_not_a_checkout_in_the_working_directory
 
 def test_set_takes_numbers_yaml_1_1_leaves_as_text():
     """`--set sensor.tip_noise_m=5e-6` (the README's own spelling of the default) was refused: YAML 1.1 reads 5e-6
-    as text. A parameters file keeps YAML's reading (ROS reads it so), with a hint how to write it."""
+    as text. In a parameters file too, as rcl's parser (`--params-file`) reads it: a number; `1_0` or `nan` spelled
+    as text are not."""
     out = run("modes", "--json", "--set", "sensor.tip_noise_m=5e-6", "--set", "air.density_kgpm3=1e0")
     assert out.returncode == 0, out.stderr
     assert load_config(None, ["sensor.tip_noise_m=5e-6"]).sensor_tip_noise_m == 5e-6
+    assert config_from_flat({"panel.thickness_m": "3e-4"}).panel_thickness_m == 3e-4
+    for text in ("1_0", "nan", "0x10", "3e-4 m"):
+        with pytest.raises(ConfigError, match="expected a number"):
+            config_from_flat({"air.density_kgpm3": text})
 
 
 def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():

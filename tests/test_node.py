@@ -819,3 +819,16 @@ def test_a_value_typed_with_dash_p_wins_over_the_params_files():
     names = [p.name for p in start_overrides([physics], argv, fast=True)]
     assert "structure.modes" not in names and names[-1] == "fast"
     assert set(names) == from_file - {"structure.modes", "model.variant"} | {"fast"}
+
+
+def test_params_file_numbers_in_e_notation_are_numbers(tmp_path: Path) -> None:
+    """`publish_rate_hz: 1e3` in a --params file was refused as a STRING (YAML 1.1 reads it as text) while the same
+    file through --params-file (rcl's parser) was taken as 1000.0; now both read the number."""
+    from panel_rig.ros.node import overrides_from_files
+
+    f = tmp_path / "p.yaml"
+    f.write_text("panel_rig:\n  ros__parameters:\n    publish_rate_hz: 1e3\n    panel:\n      thickness_m: 3e-4\n"
+                 "    bag_dir: 1e3\n")
+    got = {p.name: p.value for p in overrides_from_files([str(f)])}
+    assert got["publish_rate_hz"] == 1000.0 and got["panel.thickness_m"] == 3e-4
+    assert got["bag_dir"] == "1e3"  # a text parameter keeps its text

@@ -34,7 +34,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, read_params_file
+from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, float_from_text, read_params_file
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
@@ -239,11 +239,8 @@ class RigNode(Node):
             return prm
         if prm.type_ == Parameter.Type.INTEGER:
             return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-        if prm.type_ == Parameter.Type.STRING:
-            try:
-                return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-            except ValueError:
-                return prm
+        if prm.type_ == Parameter.Type.STRING and (number := float_from_text(prm.value)) is not None:
+            return Parameter(prm.name, Parameter.Type.DOUBLE, number)
         return prm
 
     def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
@@ -871,6 +868,11 @@ def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
             values.update(read_params_file(path))
         except ConfigError as exc:
             raise StartupError(str(exc)) from None
+    table = parameter_table()
+    for name, value in values.items():  # `publish_rate_hz: 1e3` is text to YAML 1.1, a number to rcl's --params-file
+        if isinstance(value, str) and name in table and isinstance(table[name][0], float):
+            number = float_from_text(value)
+            values[name] = value if number is None else number
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
