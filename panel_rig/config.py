@@ -220,6 +220,8 @@ def load_yaml_file(path: str | Path, what: str) -> Any:
     """The YAML document of a file; ConfigError with one line ('<what> not found: PATH', or 'PATH: malformed YAML
     (line N; the parser's complaint)', not UTF-8 text, unreadable) when it cannot be read."""
     p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{what} {p} is a directory, not a file")
     if not p.is_file():
         raise ConfigError(f"{what} not found: {p}")
     try:

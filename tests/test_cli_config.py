@@ -49,6 +49,7 @@ def test_flutter_plot(tmp_path):
     (["modes", "--set", "panel.thickness_m=-0.001"], "panel.thickness_m"),
     (["modes", "--set", "aero.elements=0"], "aero.elements"),
     (["modes", "--params", "/no/such/file.yaml"], "not found"),
+    (["operate", "--profile", "config"], "is a directory"),  # was "profile not found"
     (["flutter", "--rom-modes", "0", "--aero", "rom"], "rom-modes"),
     # more modes than the lattice has gave the full model, reported as "rom_modes": 500
     (["flutter", "--rom-modes", "500", "--aero", "rom"], "1 to 60 aerodynamic eigenmodes"),

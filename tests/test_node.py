@@ -832,3 +832,14 @@ def test_params_file_numbers_in_e_notation_are_numbers(tmp_path: Path) -> None:
     got = {p.name: p.value for p in overrides_from_files([str(f)])}
     assert got["publish_rate_hz"] == 1000.0 and got["panel.thickness_m"] == 3e-4
     assert got["bag_dir"] == "1e3"  # a text parameter keeps its text
+
+
+def test_profile_steps_say_what_is_wrong():
+    """`- abort: 1` was "unknown step 'abort' (known: ... abort ...)"; 1e3 (text to YAML 1.1) a refused number."""
+    from panel_rig.ros.operator import ProfileError, parse_profile
+
+    with pytest.raises(ProfileError, match=r"abort takes no value \(write '- abort'\)"):
+        parse_profile([{"abort": 1}])
+    assert parse_profile([{"dwell_s": "1e3"}])[0].arg == 1000.0
+    with pytest.raises(ProfileError, match=r"expected a finite number >= 0, got '1_0'"):
+        parse_profile([{"dwell_s": "1_0"}])

@@ -34,7 +34,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from panel_rig.config import ConfigError, load_yaml_file
+from panel_rig.config import ConfigError, float_from_text, load_yaml_file
 from panel_rig.processes import StopRequest
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 
@@ -79,8 +79,11 @@ class StepSummary:
 
 
 def _number(i: int, key: str, v: Any, lo: float = -math.inf) -> float:
+    if isinstance(v, str) and float_from_text(v) is not None:
+        v = float_from_text(v)  # 1e3: text to YAML 1.1, a number to us (as in parameters files)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < lo:
-        raise ProfileError(f"step {i + 1} ({key}): expected a finite number >= {lo:g}, got {v!r}")
+        rule = "a finite number" + ("" if lo == -math.inf else f" >= {lo:g}")
+        raise ProfileError(f"step {i + 1} ({key}): expected {rule}, got {v!r}")
     return float(v)
 
 
@@ -115,6 +118,8 @@ def parse_profile(doc: Any) -> list[Step]:
             steps.append(Step(kind, {k: _number(i, f"shaker.{k}", v, 0.0) for k, v in arg.items()}))
         elif kind in ("abort", "reset") and arg is None:
             steps.append(Step(kind))
+        elif kind in ("abort", "reset"):
+            raise ProfileError(f"step {i + 1}: {kind} takes no value (write '- {kind}'), got {kind}: {arg!r}")
         else:
             raise ProfileError(f"step {i + 1}: unknown step {kind!r} (known: {', '.join(KINDS)})")
     return steps
