@@ -843,3 +843,31 @@ def test_profile_steps_say_what_is_wrong():
     assert parse_profile([{"dwell_s": "1e3"}])[0].arg == 1000.0
     with pytest.raises(ProfileError, match=r"expected a finite number >= 0, got '1_0'"):
         parse_profile([{"dwell_s": "1_0"}])
+
+
+def test_operator_stops_when_the_rig_restarts(ros_env: dict[str, str]) -> None:
+    """A node restarted mid-profile (its clock starts again): the operator waited on the new clock and ended with
+    exit 0 and a table of set-points the new rig never had. It stops now, saying so."""
+    from geometry_msgs.msg import Vector3Stamped
+
+    from panel_rig.ros import operator
+
+    def reading(t_s: float) -> Vector3Stamped:
+        msg = Vector3Stamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(t_s), int(round((t_s % 1) * 1e9))
+        return msg
+
+    rclpy.init(domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = operator.Operator("/rig_restart_test", timeout_s=10.0)
+        try:
+            node._on_airspeed(reading(50.0))
+            node._on_airspeed(reading(49.995))  # late by a reading: not a restart
+            node._spin(0.0)
+            node._on_airspeed(reading(0.1))
+            with pytest.raises(operator.RigUnavailable, match=r"restarted \(its time went back from 50.00 s\)"):
+                node._spin(0.0)
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

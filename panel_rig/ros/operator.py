@@ -62,6 +62,10 @@ class Step:
         return self.kind if self.arg is None else f"{self.kind} {self.arg}"
 
 
+#: readings stamped this much before the last one come from a restarted rig (its clock started again), not late
+RESTART_BACKSTEP_S = 1.0
+
+
 @dataclass
 class StepSummary:
     """What happened during one step (rig time, commanded and measured airspeed, tip motion)."""
@@ -178,9 +182,12 @@ class Operator(Node):
         self.commanded_mps = 0.0
         self.setpoint_mps = math.nan  # the rig's airspeed set-point in its last diagnostics
         self.played: list[StepSummary] = []  # the steps done so far
+        self.restarted_from_s: float | None = None  # the old rig's last time, once a restarted rig is heard
 
     def _on_airspeed(self, msg: Vector3Stamped) -> None:
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if not math.isnan(self.time_s) and t < self.time_s - RESTART_BACKSTEP_S and self.restarted_from_s is None:
+            self.restarted_from_s = self.time_s  # a new rig (its clock starts again): see _spin
         if math.isnan(self.time_s) or t > self.time_s:
             self.time_s = t
             self.airspeed_mps = msg.vector.x
@@ -210,6 +217,9 @@ class Operator(Node):
         rclpy.spin_once(self, timeout_sec=timeout_s)
         if self.stop_requested.is_set():
             raise KeyboardInterrupt
+        if self.restarted_from_s is not None:  # the set-points given so far went with the old rig
+            raise RigUnavailable(f"the rig restarted (its time went back from {self.restarted_from_s:.2f} s): the "
+                                 f"profile's set-points were lost with it; stopped at step {len(self.played) + 1}")
         if time.monotonic() - self._last_msg_wall > self.timeout_s:
             raise RigUnavailable(f"no readings from the rig for {self.timeout_s:g} s")
 
@@ -383,6 +393,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(format_summary(summary))
         except RigUnavailable as exc:
             print(f"rig_operator: {exc}", file=sys.stderr)
+            if node.played:
+                print(format_summary(node.played))
             code = 1
         except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
             code = stop.exit_status
