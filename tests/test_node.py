@@ -448,7 +448,10 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
         "  - dwell_s: 1.0\n"
         "  - ramp: {to: 3.0, rate_mps2: 5.0}\n"
         "  - force: 0.0\n"
+        "  - force: 500.0\n"
         "  - abort\n"
+        "  - airspeed: 4.0\n"
+        "  - airspeed: 0.0\n"
         "  - reset\n"
     )
     proc = subprocess.run(
@@ -460,7 +463,13 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
         return math.nan if text == "-" else float(text)
 
     rows = [line.split() for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()]
-    assert len(rows) == 9
+    assert len(rows) == 12
+    # a command the rig refused is marked (the rig echoes it on <topic>/rejected): over the limit, or after an
+    # abort; 0 m/s after the abort is taken
+    notes = {" ".join(line.split()[1:3]): line for line in proc.stdout.splitlines() if line.strip()[:1].isdigit()}
+    assert "force 500 rejected by the rig" in notes["force 500.0"], proc.stdout
+    assert "rejected (rig aborted; reset to go on)" in notes["airspeed 4.0"], proc.stdout
+    assert "rejected" not in notes["airspeed 0.0"], proc.stdout
     dwell = next(r for r in rows if r[1] == "dwell_s" and r[2] == "2.0")
     _, u_cmd, u_meas, _, _ = map(num, dwell[-5:])  # t_end U_cmd U_meas tip_rms_mm f_Hz
     assert u_cmd == 5.0 and u_meas == pytest.approx(5.0 * (1 - math.exp(-2.0 / TAU_S)), rel=0.05)
@@ -470,7 +479,7 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
     ramp = next(r for r in rows if r[1] == "ramp")
     assert num(ramp[-4]) == 3.0  # commanded at the end of the ramp
     abort_line = next(line for line in proc.stdout.splitlines() if line.split()[1:2] == ["abort"])
-    assert "aborted at t = " in abort_line and "rig aborted" not in proc.stdout, proc.stdout  # said once, by the rig
+    assert "aborted at t = " in abort_line and "rig aborted at" not in proc.stdout, proc.stdout  # said once, by the rig
     bad = subprocess.run([PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(tmp_path / "missing.yaml")],
                          env=ros_env, capture_output=True, text=True, timeout=30, check=False)
     assert bad.returncode == 2 and "not found" in bad.stderr
@@ -793,12 +802,14 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
     from panel_rig.ros.operator import StepSummary, annotate_aborts
 
     steps = [StepSummary(1, "airspeed 11.2", 0.0, 0.1), StepSummary(2, "dwell_s 30.0", 0.1, 30.1),
-             StepSummary(3, "airspeed 10.0", 30.1, 30.2), StepSummary(4, "dwell_s 5.0", 30.2, 35.2),
-             StepSummary(5, "reset", 35.2, 35.3, note="reset"), StepSummary(6, "airspeed 8.0", 35.3, 35.4)]
+             StepSummary(3, "airspeed 10.0", 30.1, 30.2, note="airspeed 10 rejected by the rig"),
+             StepSummary(4, "dwell_s 5.0", 30.2, 35.2), StepSummary(5, "airspeed 0.0", 35.2, 35.25),
+             StepSummary(6, "reset", 35.25, 35.3, note="reset"), StepSummary(7, "airspeed 8.0", 35.3, 35.4)]
     annotate_aborts(steps, {12.5: "tip |w/L| = 0.93 exceeds the limit 0.926"})
     assert steps[1].note == "rig aborted at t = 12.50 s: tip |w/L| = 0.93 exceeds the limit 0.926"
-    assert steps[2].note.startswith("rejected") and steps[3].note == ""  # a dwell sends nothing
-    assert steps[4].note == "reset" and steps[5].note == "" and steps[0].note == ""
+    assert steps[2].note == "rejected (rig aborted; reset to go on)" and steps[3].note == ""  # a dwell sends nothing
+    assert steps[4].note == ""  # 0 m/s: an aborted rig takes it
+    assert steps[5].note == "reset" and steps[6].note == "" and steps[0].note == ""
     own = [StepSummary(1, "abort", 1.0, 1.1, note="aborted at t = 1.120 s; airspeed ramping to 0"),
            StepSummary(2, "reset", 1.1, 1.2, note="reset")]
     annotate_aborts(own, {1.12: "operator abort"})  # the operator's own abort step already says it

@@ -20,7 +20,8 @@ from panel_rig.config import PanelConfig
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import read_metadata
 from panel_rig.recording.reader import read_bag, read_metadata_records, summary_counts, verify_bag
-from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD, REJECTED_SUFFIX
+from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
+from panel_rig.topics import REJECTED_SUFFIX
 
 
 @dataclass

@@ -38,7 +38,6 @@ MESSAGE_HEADER_BYTES = 22  # channel id + sequence + log time + publish time
 PARAMETERS_RECORD = "panel_rig/parameters"
 PARAMETERS_KEY = "panel_rig.parameters"
 #: a command the rig refused is recorded on its topic + this suffix (``/rig/airspeed_cmd/rejected``)
-REJECTED_SUFFIX = "/rejected"
 
 
 def _serialize(msg: Any) -> bytes:

@@ -50,6 +50,7 @@ from panel_rig.ros.params import (
     publish_rate_problem,
 )
 from panel_rig.ros.session import ros_arguments_problem, ros_session
+from panel_rig.topics import REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
@@ -507,13 +508,17 @@ class RigNode(Node):
 
     # ---- commands and services -----------------------------------------------------------------------
     def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
+        """The subscription callback of one command topic: apply, record, and on a refusal warn and echo the
+        command on ``<topic>/rejected`` (live, so a client knows which of its commands did not act)."""
         full = self._topic_name(topic)
+        echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, COMMAND_QOS)
 
         def callback(msg: Float64) -> None:
             result = command(msg.data)
             self._record_command(full, msg, result.accepted)
             if not result.accepted:
                 self._warn_rejected(topic, f"{topic} {msg.data!r} rejected: {result.reason}")
+                echo.publish(msg)
 
         return callback
 
@@ -530,8 +535,6 @@ class RigNode(Node):
         ``<topic>/rejected`` (a replay or an analysis of the bag then sees the commands that acted)."""
         if not self._recorders:
             return
-        from panel_rig.recording.writer import REJECTED_SUFFIX
-
         name = topic if accepted else topic + REJECTED_SUFFIX
         self._record(lambda rec: rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable"))
 

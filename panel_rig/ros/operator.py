@@ -37,6 +37,7 @@ from std_srvs.srv import Trigger
 from panel_rig.config import ConfigError, float_from_text, load_yaml_file
 from panel_rig.processes import StopRequest
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
+from panel_rig.topics import REJECTED_SUFFIX
 
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -64,6 +65,7 @@ class Step:
 
 #: readings stamped this much before the last one come from a restarted rig (its clock started again), not late
 RESTART_BACKSTEP_S = 1.0
+REFUSED = "rejected by the rig"  # a step's note when the rig echoed one of its commands on <topic>/rejected
 
 
 @dataclass
@@ -178,6 +180,14 @@ class Operator(Node):
                 ("frequency", "shaker/frequency_cmd"),
             )
         }
+        # the rig echoes each command it refuses on <topic>/rejected: the step that sent it is marked
+        self._sent: list[tuple[str, float, StepSummary | None]] = []  # (command, value, step), oldest first
+        self._echoes = [
+            self.create_subscription(Float64, topic + REJECTED_SUFFIX,
+                                     lambda msg, name=name: self._on_rejected(name, msg.data), COMMAND_QOS)
+            for name, topic in (("airspeed", "airspeed_cmd"), ("force", "shaker/force_cmd"),
+                                ("amplitude", "shaker/amplitude_cmd"), ("frequency", "shaker/frequency_cmd"))]
+        self._step: StepSummary | None = None  # the step being played
         self.clients_ = {name: self.create_client(Trigger, name) for name in ("reset", "abort")}
         self.commanded_mps = 0.0
         self.setpoint_mps = math.nan  # the rig's airspeed set-point in its last diagnostics
@@ -226,10 +236,23 @@ class Operator(Node):
     def wait_for_rig(self) -> None:
         """Until the rig publishes and every command topic has a subscriber."""
         self._last_msg_wall = time.monotonic()
-        while math.isnan(self.time_s) or any(p.get_subscription_count() == 0 for p in self.pubs.values()):
+        while (math.isnan(self.time_s) or any(p.get_subscription_count() == 0 for p in self.pubs.values())
+               or any(sub.get_publisher_count() == 0 for sub in self._echoes)):
             self._spin(0.1)
 
+    def _on_rejected(self, name: str, value: float) -> None:
+        """Mark the step that sent this command (the latest unanswered one of that name and value)."""
+        for k in range(len(self._sent) - 1, -1, -1):
+            sent, v, step = self._sent[k]
+            if sent == name and (v == value or (math.isnan(v) and math.isnan(value))):
+                del self._sent[k]
+                if step is not None and "rejected" not in step.note:
+                    step.note = "; ".join(x for x in (step.note, f"{name} {value:g} {REFUSED}") if x)
+                return
+
     def send(self, name: str, value: float) -> None:
+        self._sent.append((name, float(value), self._step))
+        del self._sent[:-64]  # the rig answers within moments: only the recent ones can still be refused
         self.pubs[name].publish(Float64(data=float(value)))
         if name == "airspeed":
             self.commanded_mps = float(value)
@@ -268,7 +291,7 @@ class Operator(Node):
         out = self.played
         for i, step in enumerate(steps):
             s = StepSummary(i + 1, step.describe(), self.time_s)
-            self._samples = s.samples
+            self._samples, self._step = s.samples, s
             if step.kind == "airspeed":
                 self.send("airspeed", step.arg)
             elif step.kind == "force":
@@ -321,21 +344,22 @@ class Operator(Node):
 
 
 def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) -> None:
-    """Note each abort (simulated time -> reason) on the step during which it happened, and "rejected (rig
-    aborted)" on the command steps after it until a reset step: the rig refuses commands until reset."""
+    """Note each abort (simulated time -> reason) on the step during which it happened, and say why the commands
+    the rig refused after it (echoed: "... rejected by the rig") were refused, until a reset step. Commands of 0
+    (wind or shaker off) an aborted rig takes: they stay unmarked."""
     for t_abort, reason in sorted(aborts.items()):
-        if any(f"aborted at t = {t_abort:.3f} s" in s.note for s in summary):
-            continue  # the operator's own abort step: the rig's answer already says when
-        started = [s for s in summary if s.t_start_s <= t_abort]
+        own = [s for s in summary if f"aborted at t = {t_abort:.3f} s" in s.note]  # the rig's answer says when
+        started = own or [s for s in summary if s.t_start_s <= t_abort]
         if not started:
             continue
         hit = started[-1]
-        hit.note = "; ".join(x for x in (hit.note, f"rig aborted at t = {t_abort:.2f} s: {reason}") if x)
+        if not own:
+            hit.note = "; ".join(x for x in (hit.note, f"rig aborted at t = {t_abort:.2f} s: {reason}") if x)
         for s in summary[summary.index(hit) + 1:]:
             if s.step.startswith("reset"):
                 break
-            if s.step.split()[0] in ("airspeed", "force", "shaker", "ramp"):
-                s.note = s.note or "rejected (rig aborted; reset to go on)"
+            if REFUSED in s.note:
+                s.note = "rejected (rig aborted; reset to go on)"
 
 
 def format_summary(summary: Sequence[StepSummary]) -> str:
