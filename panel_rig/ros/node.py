@@ -49,7 +49,7 @@ from panel_rig.ros.params import (
     parameter_table,
     publish_rate_problem,
 )
-from panel_rig.ros.session import ros_arguments_problem, ros_session
+from panel_rig.ros.session import ros_arguments_problem, ros_rules, ros_session
 from panel_rig.topics import REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
@@ -882,19 +882,7 @@ def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
 def command_line_parameter_names(argv: Sequence[str]) -> set[str]:
     """Names set by ``-p NAME:=VALUE`` / ``--param`` inside ``--ros-args ... [--]`` blocks (``NODE:NAME:=VALUE``
     too). The files of ``--params`` yield to them: a value typed on the command line is the one meant."""
-    names: set[str] = set()
-    inside, expect_value = False, False
-    for token in argv:
-        if token == "--ros-args":
-            inside = True
-        elif token == "--":
-            inside = False
-        elif inside and expect_value:
-            names.add(token.split(":=", 1)[0].rsplit(":", 1)[-1])
-            expect_value = False
-        elif inside and token in ("-p", "--param"):
-            expect_value = True
-    return names
+    return {rule.split(":=", 1)[0].rsplit(":", 1)[-1] for rule in ros_rules(argv, ("-p", "--param"))}
 
 
 def start_overrides(param_files: Sequence[str], rcl_args: Sequence[str], fast: bool) -> list[Parameter]:

@@ -60,22 +60,27 @@ def namespace_problem(namespace: str) -> str | None:
     return None
 
 
-def _remapped_namespaces(args: Sequence[str]) -> list[str]:
-    """The X of every ``-r [NODE:]__ns:=X`` inside ``--ros-args ... [--]``."""
-    found, inside, remap = [], False, False
+def ros_rules(args: Sequence[str], flags: tuple[str, ...]) -> list[str]:
+    """The rules given after any of ``flags`` (e.g. ``-p``, ``--param``) inside ``--ros-args ... [--]`` blocks."""
+    rules: list[str] = []
+    inside, expect_rule = False, False
     for token in args:
         if token == "--ros-args":
             inside = True
         elif token == "--":
             inside = False
-        elif inside and remap:
-            rule, _, value = token.partition(":=")
-            if rule.rsplit(":", 1)[-1] == "__ns":
-                found.append(value)
-            remap = False
-        elif inside and token in ("-r", "--remap"):
-            remap = True
-    return found
+        elif inside and expect_rule:
+            rules.append(token)
+            expect_rule = False
+        elif inside and token in flags:
+            expect_rule = True
+    return rules
+
+
+def _remapped_namespaces(args: Sequence[str]) -> list[str]:
+    """The X of every ``-r [NODE:]__ns:=X``."""
+    rules = (rule.partition(":=") for rule in ros_rules(args, ("-r", "--remap")))
+    return [value for lhs, _, value in rules if lhs.rsplit(":", 1)[-1] == "__ns"]
 
 
 def _without_source_places(text: str) -> str:
