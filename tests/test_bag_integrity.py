@@ -214,7 +214,7 @@ def test_cli_subprocess_prints_no_traceback(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ layering
-ORDER = ["config", "model", "analysis", "rig", "ros", "recording", "viz", "cli"]
+ORDER = ["config", "topics", "model", "analysis", "rig", "ros", "recording", "viz", "cli"]
 
 
 def _imports(path: Path) -> set[str]:
