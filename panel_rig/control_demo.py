@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import random
 import subprocess
 import sys
 import time
@@ -30,7 +29,7 @@ import numpy as np
 
 from panel_rig import jsonio
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import module_command, stop
+from panel_rig.processes import module_command, private_domain_id, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
@@ -150,7 +149,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     out.mkdir(parents=True, exist_ok=True)
     bag_dir.mkdir(parents=True, exist_ok=True)
     rrd = out / f"{run_name}.rrd"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+    env = dict(os.environ, ROS_DOMAIN_ID=str(private_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                ROS_LOG_DIR=str(out / "ros_log"))
     before = {p.name for p in bag_dir.glob("rig_*")}
     node_log, ctl_log = out / f"{run_name}_node.log", out / f"{run_name}_controller.log"

@@ -22,11 +22,11 @@ def model(cfg):
 
 @pytest.fixture(scope="module")
 def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
-    """A private ROS 2 graph for one test module: a random domain (100-200, away from the default 0 of a user's own
+    """A private ROS 2 graph for one test module: a random domain (102-200, away from the default 0 of a user's own
     nodes), discovery on localhost only, logs in a temporary directory. Applied to this process (the rclpy clients
     a test makes join it) and restored afterwards; yields the whole environment, for the nodes a test starts."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("ROS_DOMAIN_ID", str(random.randint(100, 200)))
+        mp.setenv("ROS_DOMAIN_ID", str(random.randint(102, 200)))  # programs: 1..101 (PRIVATE_DOMAINS)
         mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         mp.setenv("ROS_LOG_DIR", str(tmp_path_factory.mktemp("ros_log")))
         yield dict(os.environ)

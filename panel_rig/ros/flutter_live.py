@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from typing import Any, Callable
 
 import yaml
 
-from panel_rig.processes import TERMINATED_STATUS, module_command, stop
+from panel_rig.processes import TERMINATED_STATUS, module_command, private_domain_id, stop
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
@@ -50,12 +49,6 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
             "safety.max_airspeed_mps": float(max(default_max, 1.2 * uf_mps)),
             "record": bag_dir is not None, "bag_dir": str(bag_dir) if bag_dir is not None else "bags",
             "rerun": f"save:{rerun}" if rerun else "none"}
-
-
-def private_domain_id() -> int:
-    """A random ROS domain id (1..101: the range whose ports are safe on Linux), for a node + client pair that
-    nobody else on the host should see (discovery is also limited to this host)."""
-    return random.randint(1, 101)
 
 
 def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
