@@ -29,7 +29,7 @@ import numpy as np
 
 from panel_rig import jsonio
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import module_command, private_domain_id, stop
+from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
@@ -153,15 +153,15 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
                ROS_LOG_DIR=str(out / "ros_log"))
     before = {p.name for p in bag_dir.glob("rig_*")}
     node_log, ctl_log = out / f"{run_name}_node.log", out / f"{run_name}_controller.log"
-    with open(node_log, "w") as fh:
-        node = subprocess.Popen(
+    with open(node_log, "w") as fh:  # own sessions: a Ctrl-C reaches this process, which stops them in order
+        node = spawn(
             [*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
              "--params-file", str(ROOT / "config" / "rig.yaml"), "-p", "tunnel.time_constant_s:=0.3",
              "-p", f"control.fast_delay_s:={delay_ms * 1e-3}", "-p", "fast_max_realtime_factor:=5.0",
              "-p", "diagnostics_rate_hz:=5.0", "-p", "record:=true", "-p", f"bag_dir:={bag_dir}",
              "-p", f"rerun:=save:{rrd}"], env=env, stdout=fh, stderr=subprocess.STDOUT)
     with open(ctl_log, "w") as fh:
-        ctl = subprocess.Popen(
+        ctl = spawn(
             [*module_command("panel_rig.ros.controller"), "--ros-args", "-r", "__ns:=/rig",
              "-p", f"gain_nspm2:={design.law.gain_nspm2}", "-p", f"derivative_hz:={design.law.derivative_hz}"],
             env=env, stdout=fh, stderr=subprocess.STDOUT)
@@ -249,8 +249,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     t0 = time.monotonic()
     try:
-        s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),
-                log=(lambda m: print(m, file=sys.stderr)) if args.json else print)
+        with sigterm_exits():  # a kill leaves through run's clean-up: the node does not go on recording
+            s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),
+                    log=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     except DemoError as exc:
         print(f"panel-rig control-demo: {exc}", file=sys.stderr)
         return 1

@@ -17,13 +17,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panel_rig import jsonio
-from panel_rig.processes import module_command, private_domain_id, stop
+from panel_rig.paths import make_output_dir
+from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
 #: amplitudes (its tip cannot pass its own length, and it does not diverge past ~1.2 U_f as the cubic ones do)
 DEMO_VARIANT = "exact"
 NODE_STOP_TIMEOUT_S = 20.0
+OPERATOR_TIMEOUT_S = 110.0  # wall: the staircase takes ~30 s on this machine
 
 
 def _env(log_dir: Path) -> dict[str, str]:
@@ -55,10 +57,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--bag-dir", default="bags")
     ap.add_argument("--max-rtf", type=float, default=20.0, help="fast-mode real-time factor cap (0: none)")
     args = ap.parse_args(argv)
+    try:  # before anything runs (a file or /proc as --out was a traceback; '' wrote into the working directory)
+        out = make_output_dir(args.out, "--out")
+        bag_dir = make_output_dir(args.bag_dir, "--bag-dir")
+        make_output_dir(out / "ros_log", "--out")
+    except ValueError as exc:
+        print(f"panel-rig demo: {exc}", file=sys.stderr)
+        return 2
+    with sigterm_exits():
+        return _session(args, out, bag_dir)
+
+
+def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
+    """Node and operator, stopped in order (operator, then node) however the session ends; then the analysis,
+    written before anything is printed (a closed pipe lost it)."""
     run = time.strftime("demo_%Y%m%d_%H%M%S")
-    out, bag_dir = Path(args.out), Path(args.bag_dir)
-    (out / "ros_log").mkdir(parents=True, exist_ok=True)
-    bag_dir.mkdir(parents=True, exist_ok=True)
     rrd = out / f"{run}.rrd"
     env = _env(out / "ros_log")
     before = {p.name for p in bag_dir.glob("rig_*")}
@@ -70,35 +83,50 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
                 "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}",
                 "-p", f"model.variant:={DEMO_VARIANT}"]
-    with open(node_log, "w") as log:
-        node = subprocess.Popen(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+    op_cmd = [*module_command("panel_rig.ros.operator"), "--profile", args.profile, "--namespace", "/rig",
+              "--timeout", "30"]
+    node = operator = None
+    op_out = op_err = ""
     try:
-        op = subprocess.run([*module_command("panel_rig.ros.operator"), "--profile", args.profile, "--namespace", "/rig",
-                             "--timeout", "30"], env=env, capture_output=True, text=True, timeout=110)
+        # the operator first: it waits for the rig, so the fast node does not run ahead at 0 m/s while the
+        # operator starts up (a third of the runs began with ~40 simulated seconds of nothing)
+        operator = spawn(op_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        with open(node_log, "w") as log:
+            node = spawn(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            op_out, op_err = operator.communicate(timeout=OPERATOR_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            op_err = f"the operator did not finish within {OPERATOR_TIMEOUT_S:g} s (wall)"
+    except BaseException:  # Ctrl-C, SIGTERM: the session's children do not outlive it
+        print(f"panel-rig demo: stopped; the recording so far is in {bag_dir}, the node log {node_log}",
+              file=sys.stderr)
+        raise
     finally:
-        node_code = stop(node, NODE_STOP_TIMEOUT_S)
+        op_code = stop(operator, NODE_STOP_TIMEOUT_S) if operator is not None else None
+        node_code = stop(node, NODE_STOP_TIMEOUT_S) if node is not None else None
     wall_s = time.monotonic() - t0
-    print(f"panel-rig demo: profile {args.profile}, node exit {node_code}, operator exit {op.returncode}, "
-          f"{wall_s:.1f} s wall")
-    print("\nWhat the operator did (rig time; tip RMS over the second half of each step):")
-    print(op.stdout.strip() or "(no output)")
-    if op.returncode != 0:
-        print(op.stderr.strip()[-2000:], file=sys.stderr)
     log_text = node_log.read_text(errors="replace")
     aborts = [line.split("]: ", 1)[-1] for line in log_text.splitlines() if "rig aborted" in line]
-    print("\nAborts: " + ("; ".join(aborts) if aborts else "none (the rig ran the whole procedure)"))
     bag = _new_bag(bag_dir, before)
-    print(f"Bag: {bag or '(none found)'}\nRerun: {rrd if rrd.exists() else '(not written)'}\nNode log: {node_log}")
-    analysed = False
+    table, failure = None, None
     if bag is not None:
         try:
             table = _analyze(bag, out)
         except Exception as exc:  # noqa: BLE001 - reported, and the demo then fails
-            print(f"analysis failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        else:
-            analysed = True
-            print(f"\nAnalysis of {bag.name} (PNGs and analysis.json in {out}):\n{table}")
-    ok = op.returncode == 0 and node_code == 0 and bag is not None and analysed
+            failure = f"analysis failed: {type(exc).__name__}: {exc}"
+    print(f"panel-rig demo: profile {args.profile}, node exit {node_code}, operator exit {op_code}, "
+          f"{wall_s:.1f} s wall")
+    print("\nWhat the operator did (rig time; tip RMS over the second half of each step):")
+    print(op_out.strip() or "(no output)")
+    if op_code != 0:
+        print(op_err.strip()[-2000:], file=sys.stderr)
+    print("\nAborts: " + ("; ".join(aborts) if aborts else "none (the rig ran the whole procedure)"))
+    print(f"Bag: {bag or '(none found)'}\nRerun: {rrd if rrd.exists() else '(not written)'}\nNode log: {node_log}")
+    if failure:
+        print(failure, file=sys.stderr)
+    elif table is not None:
+        print(f"\nAnalysis of {bag.name} (PNGs and analysis.json in {out}):\n{table}")
+    ok = op_code == 0 and node_code == 0 and bag is not None and table is not None
     return 0 if ok else 1
 
 

@@ -8,6 +8,8 @@ from pathlib import Path
 def make_output_dir(path: str | Path, option: str) -> Path:
     """Make an output directory now (parents too), before any work; ValueError naming the option when it cannot
     be made (a result that could not be written after the run lost the run)."""
+    if not str(path).strip():  # '' is the working directory: outputs spread into a checkout
+        raise ValueError(f"{option} must name a directory, got an empty string")
     path = Path(path)
     try:
         path.mkdir(parents=True, exist_ok=True)

@@ -30,6 +30,40 @@ def private_domain_id() -> int:
     return random.randint(*PRIVATE_DOMAINS)
 
 
+def spawn(cmd: list[str], **kwargs: object) -> subprocess.Popen:
+    """A child program of a one-command session (node, operator, controller) in its own session: a Ctrl-C in the
+    terminal reaches the session's own program only, which then stops its children in order (wind off first,
+    then the node, whose bag it closes). Should the parent die without stopping them (SIGKILL), the kernel sends
+    the child SIGTERM (Linux's parent-death signal), which stops it cleanly too."""
+    return subprocess.Popen(cmd, start_new_session=True, preexec_fn=_terminate_with_parent, **kwargs)  # noqa: PLW1509
+
+
+def _terminate_with_parent() -> None:
+    """In the child, before exec: SIGTERM when the parent dies (prctl PR_SET_PDEATHSIG; Linux only)."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        pass  # not Linux: the parent's own stop handling remains
+
+
+@contextmanager
+def sigterm_exits() -> Iterator[None]:
+    """Within the block SIGTERM raises SystemExit(143): a ``kill`` or a ``timeout`` leaves through the program's
+    clean-up (``finally`` blocks stop its children) as Ctrl-C does; without it the program ended at once and its
+    node went on recording. The previous handler comes back on leaving the block."""
+
+    def terminated(signum: int, frame: object) -> None:
+        raise SystemExit(TERMINATED_STATUS)
+
+    previous = signal.signal(signal.SIGTERM, terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def module_command(module: str, *args: str) -> list[str]:
     """``python -P -m module args``: a child program of this install. ``-P`` keeps the working directory off
     sys.path, so a ``panel_rig/`` directory where the user stands (another checkout) is never what the child runs

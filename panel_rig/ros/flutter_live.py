@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -16,15 +15,10 @@ from typing import Any, Callable
 
 import yaml
 
-from panel_rig.processes import TERMINATED_STATUS, module_command, private_domain_id, stop
+from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
-
-
-def _terminated(signum: int, frame: Any) -> None:
-    """SIGTERM: leave through the same clean-up as Ctrl-C (wind off, node stopped, bag closed), status 143."""
-    raise SystemExit(TERMINATED_STATUS)
 
 
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
@@ -84,11 +78,10 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     cmd = [*module_command("panel_rig.ros.node"), "--fast", "--params", str(params_file),
            "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     log_path = run_dir / "node.log"
-    with open(log_path, "w") as log:
-        node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+    with open(log_path, "w") as log:  # its own session: a Ctrl-C in the terminal reaches this process only, which
+        node = spawn(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)  # winds off before stopping the node
     from panel_rig.ros.flutter_client import RigGone
 
-    previous = signal.signal(signal.SIGTERM, _terminated)  # a killed test must not leave its node running
     points: list[Any] = []
 
     def on_point(point: Any, decision: Any) -> None:
@@ -99,7 +92,8 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
             progress(point_line(len(points), point, decision))
 
     try:
-        res, results, timing = _drive(node, did, settings, startup_s, on_point)
+        with sigterm_exits():  # a killed test must not leave its node running
+            res, results, timing = _drive(node, did, settings, startup_s, on_point)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
     except (KeyboardInterrupt, SystemExit):
@@ -108,7 +102,6 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         raise
     finally:
         code = stop(node, STOP_WAIT_S)
-        signal.signal(signal.SIGTERM, previous)
     bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
     res.bag = str(bags[-1]) if bags and bag_dir is not None else None
     out = res.as_dict()
