@@ -82,7 +82,7 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
                 "--params-file", str(ROOT / "config" / "rig.yaml"),
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",
                 "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}",
-                "-p", f"model.variant:={DEMO_VARIANT}"]
+                "-p", f"model.variant:={DEMO_VARIANT}", "-p", "fast_wait_for_command:=true"]
     op_cmd = [*module_command("panel_rig.ros.operator"), "--profile", args.profile, "--namespace", "/rig",
               "--timeout", "30"]
     node = operator = None

@@ -54,3 +54,44 @@ def test_a_stopped_demo_stops_its_children_and_closes_the_bag(tmp_path: Path, ho
 def _commands(read_bag, bags: Path) -> list[float]:
     (bag,) = bags.glob("rig_*")
     return [m.data for topic, _, _, m in read_bag(bag) if topic.endswith("/airspeed_cmd")]
+
+
+def test_fast_wait_for_command_starts_the_clock_with_the_first_command(ros_env: dict[str, str]) -> None:
+    """The demo's fast node ran ~40 simulated seconds at 0 m/s in a third of the runs while its operator was
+    still being discovered; with fast_wait_for_command its simulated time stands until a command arrives."""
+    rclpy = pytest.importorskip("rclpy")
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Float64
+
+    from panel_rig.processes import module_command, stop
+
+    node = subprocess.Popen([*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
+                             "-p", "fast_wait_for_command:=true", "-p", "diagnostics_rate_hz:=10.0"],
+                            env=ros_env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    watcher = rclpy.create_node("clock_watch", context=ctx)
+    times: list[float] = []
+    watcher.create_subscription(DiagnosticArray, "/diagnostics", lambda m: times.extend(
+        float(kv.value) for st in m.status for kv in st.values if kv.key == "sim_time_s"), 10)
+    pub = watcher.create_publisher(Float64, "/rig/airspeed_cmd", 10)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(watcher)
+
+    def spin_until(done, what: str, timeout_s: float = 120.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not done():
+            assert node.poll() is None and time.monotonic() < deadline, f"waiting for {what}"
+            executor.spin_once(timeout_sec=0.1)
+
+    try:
+        spin_until(lambda: len(times) >= 5 and pub.get_subscription_count() > 0, "five diagnostics and the node")
+        assert max(times) == 0.0, times  # half a second of wall time at least, and the clock has not moved
+        pub.publish(Float64(data=0.0))
+        spin_until(lambda: times[-1] > 1.0, "the clock to run after the command", 30.0)
+    finally:
+        executor.shutdown()
+        watcher.destroy_node()
+        rclpy.shutdown(context=ctx)
+        stop(node, 30)

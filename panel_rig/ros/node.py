@@ -347,6 +347,9 @@ class RigNode(Node):
                                                        dwell_s=p["flutter_test.dwell_s"])
             self.rig.sinks.append(self._flutter_monitor)
         self._flutter_hold = bool(p["flutter_test.hold"] and p["fast"] and self._flutter_monitor is not None)
+        # fast_wait_for_command: released by the first command, or after HOLD_TIMEOUT_S of wall time (logged)
+        self._start_hold_until: float | None = time.monotonic() + HOLD_TIMEOUT_S if (
+            p["fast_wait_for_command"] and p["fast"]) else None
         self._hold_since: float | None = None
         # asked for and not possible: the node does not start (a run believed recorded must not go unrecorded)
         self._rerun: Any = None
@@ -428,6 +431,7 @@ class RigNode(Node):
     def _on_control(self, msg: WrenchStamped) -> None:
         """Age = now - stamp in the rig's time base (real time: the ROS clock; fast: simulated time); the command
         acts from the simulated instant of its arrival."""
+        self._command_arrived()
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         stamp_s = (stamp_ns - self._stamp_offset_ns) * 1e-9
         if self.fast:  # lock-step: the rig waited for this answer; the transport latency is emulated
@@ -463,6 +467,22 @@ class RigNode(Node):
                                           f"at t = {self.rig.time_s:.3f} s")
                 return
             executor.spin_once(timeout_sec=0.002)
+
+    def waiting_for_command(self) -> bool:
+        """Fast mode with ``fast_wait_for_command``: true until the first command arrives, so a session's clock
+        starts with its operator (the fast node ran ~40 simulated s at 0 m/s while one was discovered)."""
+        if self._start_hold_until is None:
+            return False
+        if time.monotonic() > self._start_hold_until:
+            self._start_hold_until = None
+            self.get_logger().warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway")
+            return False
+        return True
+
+    def _command_arrived(self) -> None:
+        if self._start_hold_until is not None:
+            self._start_hold_until = None
+            self.get_logger().info(f"first command: simulated time starts at t = {self.rig.time_s:.3f} s")
 
     def flutter_holding(self) -> bool:
         """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
@@ -514,6 +534,7 @@ class RigNode(Node):
         echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, COMMAND_QOS)
 
         def callback(msg: Float64) -> None:
+            self._command_arrived()
             result = command(msg.data)
             self._record_command(full, msg, result.accepted)
             if not result.accepted:
@@ -815,7 +836,7 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
         if not node.fast:
             executor.spin_once(timeout_sec=0.05)
             continue
-        if node.flutter_holding():  # a flutter-test client is deciding the next point: serve callbacks only
+        if node.waiting_for_command() or node.flutter_holding():  # a client to come, or deciding: callbacks only
             executor.spin_once(timeout_sec=FAST_SPIN_PERIOD_S)
             pace.anchor(node.rig.time_s)
             continue

@@ -125,6 +125,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                     "as soon as it is complete), simulated s", MIN_DWELL_S, MAX_DWELL_S),
     "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision", 0.0, 1.0,
                                    lo_open=True),
+    "fast_wait_for_command": NodeParam(False, False, _bool, "fast mode: simulated time starts with the first "
+                                       "command received (an operator's, a controller's), not at start-up"),
     "flutter_test.hold": NodeParam(False, False, _bool, "fast mode: hold simulated time after each published test "
                                    "point until the next airspeed command (a flutter-test client's lock-step)"),
 }
