@@ -307,8 +307,11 @@ def cmd_lco(args: argparse.Namespace) -> int:
         from panel_rig.analysis.plots import plot_series
 
         t = np.arange(tip.size) * cfg.dt_s
+        gone = payload.get("diverged_at_s") if payload.get("diverged") else None
+        title = f"U = {args.airspeed} m/s" + ("" if gone is None else f": diverged at {gone:.2f} s (|w/L| over the bound)")
         payload["plot"] = str(plot_series(args.plot, t, [(tip, f"{args.variant}, {args.aero}")], "time, s",
-                                          "tip w/L", f"U = {args.airspeed} m/s"))
+                                          "tip w/L", title,
+                                          marks=None if gone is None else (np.array([gone]), "diverged")))
     _emit(args, payload, lambda: "\n".join(f"{k:24s} {v}" for k, v in payload.items()))
     return 0
 
@@ -414,9 +417,14 @@ def cmd_static(args: argparse.Namespace) -> int:
     payload = r.as_dict()
     # a dead load across the clamped direction turns the tip towards it, never past it (pi/2 as the load grows
     # without bound): a tip angle beyond is the modal series' truncation (3 modes pass it between P L^2/D = 30 and 35)
-    note = (f"the tip angle passes pi/2, which a dead transverse load cannot do: {cfg.n_modes} modes do not resolve "
-            "this load; raise structure.modes (e.g. --set structure.modes=6)"
-            if abs(r.tip_angle_rad) >= np.pi / 2 else None)
+    if not (abs(r.tip_w_over_L) <= 1.0 and abs(r.tip_u_over_L) <= 1.0 and np.isfinite(r.tip_angle_rad)):
+        note = (f"the {r.variant} variant's cubic expansion does not hold at this load (tip w/L {r.tip_w_over_L:.3g}, "
+                f"u/L {r.tip_u_over_L:.3g}: a slope beyond 1 or a tip beyond the panel's length); use --variant exact")
+    elif abs(r.tip_angle_rad) >= np.pi / 2:
+        note = (f"the tip angle passes pi/2, which a dead transverse load cannot do: {cfg.n_modes} modes do not "
+                "resolve this load; raise structure.modes (e.g. --set structure.modes=6)")
+    else:
+        note = None
     payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes, note=note)
     _emit(args, payload, lambda: (
         f"dead transverse tip load, variant {r.variant}, {cfg.n_modes} modes\n"

@@ -311,3 +311,5 @@ def test_static_says_when_the_modal_series_is_truncated():
     resolved = json.loads(run("static", "--tip-load-parameter", "50", "--variant", "exact", "--json", "--set",
                               "structure.modes=6").stdout)
     assert resolved["tip_angle_rad"] < np.pi / 2 and resolved["note"] is None
+    cubic = json.loads(run("static", "--tip-load-parameter", "40", "--variant", "full", "--json").stdout)
+    assert cubic["tip_u_over_L"] > 1 and "--variant exact" in cubic["note"]  # u/L 3.42 went without a word

@@ -24,6 +24,11 @@ def test_lco_sweep_marks_the_diverged_airspeeds(tmp_path, monkeypatch):
     crosses = [ln for ln in figures[0] if ln.get_marker() == "x"]
     assert len(crosses) == 1 and list(crosses[0].get_xdata()) == [12.0, 16.0]
     assert "diverged" in crosses[0].get_label()
+    # a frequency only where there is an LCO: the decaying run's (10 m/s, RMS 0) drew a false step into the LCO's
+    quiet = [LCOResult(10.0, 0.0, 0.0, 22.9, None, False), LCOResult(11.0, 0.3, 0.4, 17.8, 2.0, False)]
+    plots.plot_lco_sweep(tmp_path / "fig8b.png", np.array([10.0, 11.0]), quiet, "Fig. 8")
+    freq = next(ln for ln in figures[1] if "frequency" in ln.get_label())
+    assert np.isnan(freq.get_ydata()[0]) and freq.get_ydata()[1] == 17.8 / 50.0
 
 
 def test_spectrum_names_its_reference_frequencies_in_the_legend(tmp_path, monkeypatch):
@@ -37,3 +42,16 @@ def test_spectrum_names_its_reference_frequencies_in_the_legend(tmp_path, monkey
     plots.plot_spectrum(tmp_path / "fig4b.png", 1 / 1024.0, [(np.sin(2 * np.pi * 22.0 * t), "tip")],
                         marks=[(22.0, "paper C1"), (22.55, "paper C3"), (22.83, "ours f_f")])
     assert legends[0] == ["tip", "paper C1: 22.00 Hz", "paper C3: 22.55 Hz", "ours f_f: 22.83 Hz"]
+
+
+def test_report_rows_have_the_header_s_cells():
+    """report.md: `|w/L|` inside rows C4 and C5 split them into 9 cells under a 7-column header."""
+    import re
+
+    from panel_rig.analysis.report import markdown
+
+    text = markdown([{"id": "C4", "what": "peak |w/L|, Hz", "paper": [0.9, 20.0], "ours": "diverged (|w/L| > bound)",
+                      "verdict": None, "note": "", "exact": [0.8, 19.0]}], 1.0)
+    header, row = (ln for ln in text.splitlines() if ln.startswith("| id") or ln.startswith("| C4"))
+    cells = lambda line: len(re.split(r"(?<!\\)\|", line)) - 2  # noqa: E731 - unescaped pipes
+    assert cells(row) == cells(header) == 7

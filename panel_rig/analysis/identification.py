@@ -61,8 +61,9 @@ class ModalEstimate:
         return self.damping_ratio - h, self.damping_ratio + h
 
     def frequency_ci_hz(self, level: float = CI_LEVEL) -> tuple[float, float]:
+        """Normal interval of the frequency, its lower end at 0 Hz at least (a frequency is not negative)."""
         h = self._half(self.frequency_se_hz, level)
-        return self.frequency_hz - h, self.frequency_hz + h
+        return max(0.0, self.frequency_hz - h), self.frequency_hz + h
 
     def as_dict(self) -> dict:
         return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio,

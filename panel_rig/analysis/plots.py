@@ -54,16 +54,17 @@ def plot_flutter_roots(curves: dict[str, tuple[np.ndarray, list[np.ndarray]]], p
 
 def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, str]], xlabel: str,
                 ylabel: str, title: str = "", paper: Sequence[tuple[np.ndarray, np.ndarray, str]] = (),
-                marks: tuple[np.ndarray, str] | None = None) -> Path:
-    """Generic line plot with optional paper points; ``marks`` (x values, label): crosses at the bottom edge for
-    points without a value (e.g. the diverged airspeeds of a sweep), so the axis spans them too."""
+                marks: tuple[np.ndarray, str] | None = None, marks_at: float = 0.03) -> Path:
+    """Generic line plot with optional paper points; ``marks`` (x values, label): crosses at the height
+    ``marks_at`` (a fraction of the axes, bottom edge by default) for points without a value (e.g. the diverged
+    airspeeds of a sweep), so the axis spans them too."""
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for y, label in ys:
         ax.plot(x, y, label=label, lw=1.2)
     for px, py, label in paper:
         ax.plot(px, py, "ks", mfc="none", label=label)
     if marks is not None and len(marks[0]):
-        ax.plot(marks[0], np.full(len(marks[0]), 0.03), "x", color="C3", label=marks[1],
+        ax.plot(marks[0], np.full(len(marks[0]), marks_at), "x", color="C3", label=marks[1],
                 transform=ax.get_xaxis_transform(), clip_on=False)
         ax.set_xlim(min(np.nanmin(x), np.min(marks[0])) - 0.5, max(np.nanmax(x), np.max(marks[0])) + 0.5)
     ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
@@ -73,14 +74,18 @@ def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, 
 
 
 def plot_lco_sweep(path: str | Path, airspeed_mps: np.ndarray, results: Sequence[Any], title: str) -> Path:
-    """Fig. 8: RMS tip w/L and frequency / 50 Hz of LCO runs against airspeed, diverged runs (no metrics) marked
-    by crosses on the axis."""
-    return plot_series(path, airspeed_mps, [
-        (np.array([r.rms_tip_w_over_L for r in results]), "RMS tip w/L"),
-        (np.array([r.dominant_frequency_hz for r in results]) / 50.0, "frequency / 50 Hz")],
-        "airspeed, m/s", "RMS w/L ; f/50 Hz", title,
-        marks=(np.array([u for u, r in zip(airspeed_mps, results) if r.diverged]),
-               "diverged (|tip w/L| over the bound)"))
+    """Fig. 8: RMS tip w/L and, where there is an LCO (RMS at least analyze's ``lco_min_rms``), its frequency / 50
+    Hz against airspeed (a decaying run's frequency drew a false step into the LCO's); diverged runs (no metrics)
+    marked by crosses at the top: beyond the bound, not zero."""
+    from panel_rig.analysis.bag_analysis import Criteria
+
+    rms = np.array([r.rms_tip_w_over_L for r in results], dtype=float)
+    freq = np.array([r.dominant_frequency_hz for r in results], dtype=float)
+    freq[~(rms >= Criteria().lco_min_rms)] = np.nan
+    return plot_series(path, airspeed_mps, [(rms, "RMS tip w/L"), (freq / 50.0, "LCO frequency / 50 Hz")],
+                       "airspeed, m/s", "RMS w/L ; f/50 Hz", title,
+                       marks=(np.array([u for u, r in zip(airspeed_mps, results) if r.diverged]),
+                              "diverged (|tip w/L| over the bound)"), marks_at=0.97)
 
 
 def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarray, str]],

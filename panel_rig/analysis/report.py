@@ -189,6 +189,11 @@ def node_of(x: np.ndarray, rms_w: np.ndarray) -> float | None:
     return float(x[idx[-1]]) if idx else None
 
 
+def _cell(value: object) -> str:
+    """A markdown table cell: a `|` inside (|w/L|) split rows C4 and C5 into more cells than the header has."""
+    return str(value).replace("|", "\\|")
+
+
 def markdown(rows: list[dict], wall_s: float) -> str:
     lines = ["# panel_rig: Tang & Dowell (2002) reproduced", "",
              "Paper value beside ours for every id of `published_results.md`; see docs/validation.md.", "",
@@ -197,7 +202,8 @@ def markdown(rows: list[dict], wall_s: float) -> str:
              "| id | what | paper | ours | verdict | note | exact |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         ex = "" if r.get("exact") is None else r["exact"]
-        lines.append(f"| {r['id']} | {r['what']} | {r['paper']} | {r['ours']} | {r['verdict']} | {r['note']} | {ex} |")
+        cells = (r["id"], r["what"], r["paper"], r["ours"], r["verdict"], r["note"], ex)
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     lines += ["", f"Figures: fig2a/b (forced), fig3 (flutter), fig4a/b (LCO), fig5 (shape), fig6, fig7 (exact), "
                   f"fig8 (full, stiffness, exact). Wall time {wall_s:.0f} s."]
     return "\n".join(lines) + "\n"
