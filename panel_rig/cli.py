@@ -137,18 +137,24 @@ def cmd_flutter(args: argparse.Namespace) -> int:
             text = "no flutter found up to 60 m/s"
         else:
             text = (f"variant            {args.variant} ({LINEAR_NOTE})\n"
-                    f"flutter speed      {fp.speed_mps:8.3f} m/s\n"
+                    f"flutter speed      {fp.speed_mps:8.3f} m/s ({_model_label(args.aero, kw['rom_modes'])}, "
+                    f"{args.formulation})\n"
                     f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
                     f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
         if vg is not None:
             n = vg.poles.shape[1]
-            text += "\n\n U (m/s)" + "".join(f"   f{i + 1} (Hz)  zeta{i + 1}  " for i in range(n)) + "\n" + "\n".join(
+            text += f"\n\nV-g of the model the stepper marches ({_model_label('rom', rom_modes)}, continuous time):"
+            text += "\n U (m/s)" + "".join(f"   f{i + 1} (Hz)  zeta{i + 1}  " for i in range(n)) + "\n" + "\n".join(
                 f"{u:8.2f}" + "".join(f"  {f:9.3f} {z:8.5f}" for f, z in zip(fr, zr))
                 for u, fr, zr in zip(vg.airspeed_mps, vg.frequency_hz, vg.damping_ratio))
         return text
 
     _emit(args, payload, table)
     return 0
+
+
+def _model_label(aero: str, rom_modes: int | None) -> str:
+    return "full lattice" if aero == "full" else f"ROM Ra={rom_modes}"
 
 
 def _flutter_options_apply(args: argparse.Namespace) -> None:
