@@ -190,6 +190,9 @@ def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: 
         ax.set_xlabel("airspeed, m/s")
         ax.legend(fontsize=8)
     ax1.axhline(0, color="k", lw=0.5)
-    ax1.set(ylabel="damping ratio zeta = -Re s / |s|", title=f"V-g {title}".strip())
+    # linear within +-0.01, logarithmic beyond: the first mode's damping (~0.4) set a linear scale on which the
+    # flutter mode's zero crossing (+-0.008) could not be seen
+    ax1.set_yscale("symlog", linthresh=0.01)
+    ax1.set(ylabel="damping ratio zeta = -Re s / |s| (linear within 0.01)", title=f"V-g {title}".strip())
     ax2.set(ylabel="natural frequency |s| / 2 pi, Hz", title=f"V-f {title}".strip())
     return _save(fig, path)
