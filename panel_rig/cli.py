@@ -721,6 +721,12 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     if problem:  # before the analysis: a --rerun that cannot be written threw the whole result away
         print(f"{ANALYZE_PROG}: --rerun: {problem}", file=sys.stderr)
         return 2
+    if args.plots is not None:
+        try:  # likewise a --plots directory that cannot be made
+            make_output_dir(args.plots, "--plots")
+        except ValueError as exc:
+            print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+            return 2
     try:
         result = analyze_bag(args.bag, args.plots, args.rerun)
     except RecordingError as exc:

@@ -26,6 +26,8 @@ def rrd_path_problem(path: str | Path) -> str | None:
         return f"a Rerun recording is saved to a .rrd file, not {str(path)!r}"
     if path.is_dir():
         return f"{path} is a directory: name the .rrd file in it"
+    if path.parent.exists() and not path.parent.is_dir():
+        return f"{path.parent} is a file, not a directory"
     if not path.parent.is_dir():
         return f"directory {path.parent} does not exist"
     return None
