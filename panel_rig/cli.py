@@ -574,18 +574,24 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
         "refused_commands": rec.refused_commands, **core,
     }
-    result["flutter_test"] = replay_flutter_test(rec)
+    result["flutter_test"], ft_points = _replay_flutter_test(rec)
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
                        if plots_dir is not None else [])
-    result["rerun"] = _write_rerun(rec, Path(rerun_path)) if rerun_path is not None else None
+    result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
+                       else None)
     return result
 
 
 def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
+    """The flutter-test replay's JSON part (see :func:`_replay_flutter_test`)."""
+    return _replay_flutter_test(rec)[0]
+
+
+def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
     """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
     per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
     the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
-    bag has no airspeed commands or the model does not flutter."""
+    bag has no airspeed commands or the model does not flutter. With it the identified points (TestPoint)."""
     from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
     from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.config import SCHEMA, config_from_flat
@@ -593,7 +599,7 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
 
     cmds = rec.commands.get("airspeed_cmd", [])
     if not cmds:
-        return None
+        return None, []
     try:
         cfg = config_from_flat({k: v for k, v in rec.parameters.items() if k in SCHEMA})
     except ConfigError:
@@ -602,7 +608,7 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
     model = Stepper(cfg, variant=variant if variant in VARIANTS else "full").model
     found = model_flutter_speed(model)
     if found is None:
-        return None
+        return None, []
     uf, mode = found
     force = rec.force_npm if np.any(rec.force_npm) else None
     # a node run with the flutter monitor recorded its test-point window: replay exactly that window
@@ -624,7 +630,7 @@ def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
                        predicted_flutter_speed_ci_mps=pd["predicted_flutter_speed_ci_mps"],
                        prediction_method=d.prediction.method,
                        margin=d.prediction.margin(points[-1].airspeed_mps))
-    return out
+    return out, points
 
 
 def _bound(x: float | None) -> str:
@@ -632,23 +638,75 @@ def _bound(x: float | None) -> str:
     return "open" if x is None else f"{x:.2f}"
 
 
-def _write_rerun(rec: Any, path: Any) -> str:
-    """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live)."""
+def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = ()) -> str:
+    """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live), with the analysis of
+    ``result``: the plateaus' status and the onset (text log), and the flutter-test replay's identified points
+    (flutter monitor views). The blueprint holds only views with data: control views when the bag has control
+    commands, the flutter views when the replay identified a point, the analysis log when there are plateaus."""
     from panel_rig.viz import RerunLogger
 
     n_modes = max(1, rec.q.shape[1])
     q = rec.q if rec.q.shape[1] else np.zeros((rec.t_s.size, 1))
-    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name)
+    result = result or {}
+    control = rec.commands.get("control/force_cmd", [])
+    replayed = _replay_times(rec, result, ft_points)
+    decisions = _replay_decisions(ft_points, rec.parameters)
+    views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (
+        ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
+        ("analysis",) if result.get("plateaus") else ())
+    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views)
     try:
         logger.log_batch(rec.t_s, rec.tip_w_over_L, q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
         for name, events in rec.commands.items():
             for t, value in events:
                 logger.on_command(name, value, True, t)
+        for t, value in control:  # the command's age is not in the bag: 0
+            logger.log_control(t, value, 0.0)
         for t, x, z in rec.shapes:
             logger.log_shape(t, x, z)
+        margin = float(rec.parameters.get("flutter_test.margin", 0.1))
+        for k, (t, d) in enumerate(zip(replayed, decisions), start=1):
+            logger.log_flutter_point(t, ft_points[:k], d, margin)
+        _log_analysis(logger, result)
     finally:
         logger.close()
     return str(path)
+
+
+def _replay_times(rec: Any, result: dict[str, Any], points: list[Any]) -> list[float]:
+    """When each replayed point was identified: the end of the analysed plateau at its airspeed (the end of the
+    recording when none matches)."""
+    ends = [(p["airspeed_mps"], p["t_end_s"]) for p in result.get("plateaus") or []]
+    t_last = float(rec.t_s[-1]) if rec.t_s.size else 0.0
+    return [min((t for u, t in ends if abs(u - p.airspeed_mps) < 0.05), default=t_last) for p in points]
+
+
+def _replay_decisions(points: list[Any], parameters: dict[str, Any]) -> list[Any]:
+    """The decision the flutter test would take after each replayed point (as :func:`_replay_flutter_test`)."""
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, decide
+
+    if not points:
+        return []
+    margin = float(parameters.get("flutter_test.margin", 0.1))
+    settings = FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin)
+    return [decide(points[:k], settings) for k in range(1, len(points) + 1)]
+
+
+def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
+    """Each plateau's status at its end and the onset line at the end of the last plateau (text log)."""
+    plateaus = result.get("plateaus") or []
+    for p in plateaus:
+        logger.log_text(p["t_end_s"], "analysis/plateaus",
+                        f"plateau {p['index']}: {p['airspeed_mps']:.2f} m/s {p['status']} (rms w/L "
+                        f"{p['rms_tip_w_over_L']:.3g}, peak {p['peak_tip_w_over_L']:.3g}, "
+                        f"{p['dominant_frequency_hz']:.2f} Hz, rate {p['growth_rate_per_s']:.3f} 1/s)",
+                        warn=p["status"] in ("lco", "growing"))
+    if plateaus and result.get("onset"):
+        lines = format_table({**result, "plateaus": [], "flutter_test": None, "plots": [], "rerun": None,
+                              "refused_commands": {}, "gaps": []}).splitlines()
+        onset = next(line for line in lines if line.startswith("flutter onset"))
+        logger.log_text(plateaus[-1]["t_end_s"], "analysis/onset", onset,
+                        warn=result["onset"]["bracket_high_mps"] is not None)
 
 
 def format_table(result: dict[str, Any]) -> str:

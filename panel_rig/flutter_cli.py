@@ -69,6 +69,45 @@ class BagSink:
         pass
 
 
+class ShapeSink:
+    """Rig sink queueing the panel shape on a Rerun logger every ``period_s`` of simulated time (the node draws it
+    from its shape timer; without this the in-process test's panel-shape view stayed empty). The strip is the
+    node's: the rigid airfoil at z = 0, then the panel (``SHAPE_POINTS`` points, its modal shape at the sample)."""
+
+    SHAPE_POINTS = 31  # as panel_rig.ros.node.SHAPE_POINTS (not imported: that module needs rclpy)
+    N_AIRFOIL = 5
+
+    def __init__(self, viz: Any, rig: Any, cfg: Any, period_s: float = 0.1) -> None:
+        self.viz, self.rig, self.period_s = viz, rig, float(period_s)
+        self.L = float(cfg.panel_length_m)
+        self.x_over_L = np.linspace(0.0, 1.0, self.SHAPE_POINTS)
+        self.x_m = np.concatenate([np.linspace(0.0, cfg.airfoil_length_m, self.N_AIRFOIL, endpoint=False),
+                                   cfg.airfoil_length_m + self.L * self.x_over_L])
+        self.next_s = 0.0
+
+    def on_reading(self, reading: Any) -> None:
+        if reading.time_s >= self.next_s - 1e-9:
+            self._queue(float(reading.time_s), np.asarray(reading.q, dtype=float))
+
+    def on_block(self, block: Any) -> None:
+        times = np.asarray(block.time_s, dtype=float)
+        k = int(np.searchsorted(times, self.next_s - 1e-9, side="left"))
+        while k < times.size:
+            self._queue(float(times[k]), np.asarray(block.q[k], dtype=float))
+            k = int(np.searchsorted(times, self.next_s - 1e-9, side="left"))
+
+    def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
+        pass
+
+    def _queue(self, t: float, q: np.ndarray) -> None:
+        w = np.nan_to_num(self.rig.shape_w_over_L(self.x_over_L, q))
+        self.viz.queue_shape(t, self.x_m, np.concatenate([np.zeros(self.N_AIRFOIL), self.L * w]))
+        self.next_s = t + self.period_s
+
+    def close(self) -> None:
+        pass
+
+
 def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                      bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                      params: dict[str, Any] | None = None, dwell_s: float | None = None,
@@ -132,10 +171,13 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     if rerun:
         from panel_rig.viz import RerunLogger
 
-        viz = RerunLogger(len(np.atleast_1d(st.q)), mode="save", target=rerun, recording_name="flutter_test")
+        viz = RerunLogger(len(np.atleast_1d(st.q)), mode="save", target=rerun, recording_name="flutter_test",
+                          views=("flutter", "flutter_uf"))
         sinks.append(viz)
     rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), sinks=sinks,
               **tunnel_extras(cfg, st))
+    if viz is not None:
+        rig.sinks.append(ShapeSink(viz, rig, cfg))
     history: list[tuple[float, Any, Any]] = []
 
     def on_point(point: Any, decision: Any) -> None:

@@ -7,6 +7,7 @@ All data is on the duration timeline `sim_time` (simulated seconds).
 from __future__ import annotations
 
 import time
+from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,10 +25,16 @@ FORCE = "shaker/force_npm"
 SHAPE = "panel/shape"
 CONTROL_CMD = "control/command_npm"
 CONTROL_AGE = "control/latency_ms"
-# the flutter monitor: predicted U_f (and its interval) and the margin vs time; damping (x 1000) vs airspeed
+# the flutter monitor: predicted U_f (and its interval, m/s), the margin (unitless: its own view) and the
+# identified damping (x 1000, 95 % interval) vs time, one sample per test point; damping vs airspeed (2-D)
 FLUTTER_UF = "flutter/predicted_uf_mps"
 FLUTTER_MARGIN = "flutter/margin"
+FLUTTER_DAMPING = "flutter/damping_x1000"
 FLUTTER_VG = "flutter_vg"
+# an analysis of a recording (`panel-rig analyze --rerun`): plateau status and the flutter onset as text logs
+ANALYSIS = "analysis"
+#: the optional views; a recording's blueprint shows only those it has data for
+OPTIONAL_VIEWS = ("control", "flutter", "flutter_uf", "analysis")
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
 #: how long close() waits for the last data to reach the viewer or the .rrd file (s)
 FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
@@ -35,6 +42,20 @@ FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
 # average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
 # its envelope at any zoom.
 AGGREGATION = "MinMax"
+
+
+#: name and colour of the flutter monitor's series; each sample (one per test point) is a marker too, so a
+#: series with a single sample so far is drawn
+FLUTTER_STYLES = {
+    f"{FLUTTER_UF}/estimate": ("predicted U_f m/s", [214, 39, 40]),
+    f"{FLUTTER_UF}/ci_low": ("95 % low m/s", [255, 152, 150]),
+    f"{FLUTTER_UF}/ci_high": ("95 % high m/s", [255, 152, 150]),
+    f"{FLUTTER_MARGIN}/current": ("margin 1 - U/U_f", [31, 119, 180]),
+    f"{FLUTTER_MARGIN}/required": ("required margin", [0, 0, 0]),
+    f"{FLUTTER_DAMPING}/identified": ("damping x 1000", [31, 119, 180]),
+    f"{FLUTTER_DAMPING}/ci_low": ("95 % low", [174, 199, 232]),
+    f"{FLUTTER_DAMPING}/ci_high": ("95 % high", [174, 199, 232]),
+}
 
 
 class VizError(RuntimeError):
@@ -46,29 +67,46 @@ def modal_entity(i: int) -> str:
     return f"modal/q{i}"
 
 
-def blueprint(n_modes: int) -> Any:
-    """Default layout: tip, modal, airspeed+shaker time series and the panel shape in 3-D."""
+def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
+    """Default layout: tip, modal, airspeed+shaker time series, the panel shape in 3-D, and of
+    `OPTIONAL_VIEWS` those in ``views``: control command and age, the flutter monitor (margin, damping vs time
+    and damping vs airspeed), its predicted U_f (there only once a prediction is made), the analysis text log."""
     import rerun.blueprint as rrb
 
-    series = rrb.Vertical(
+    unknown = set(views) - set(OPTIONAL_VIEWS)
+    if unknown:
+        raise VizError(f"unknown views {sorted(unknown)}; optional views are {OPTIONAL_VIEWS}")
+    series = [
         rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L"),
         rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}"),
         rrb.TimeSeriesView(
             origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)"
         ),
-        rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
-        rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)"),
-        rrb.TimeSeriesView(origin="/", contents=[f"{FLUTTER_UF}/**", FLUTTER_MARGIN],
-                           name="Flutter monitor: predicted U_f (m/s) and margin"),
-    )
+    ]
+    if "control" in views:
+        series += [rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
+                   rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)")]
+    if "flutter" in views:
+        if "flutter_uf" in views:
+            series.append(rrb.TimeSeriesView(origin=FLUTTER_UF,
+                                             name="Flutter monitor: predicted U_f and 95 % interval (m/s)"))
+        series += [
+            rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)"),
+            rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point"),
+        ]
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
     eye = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital, position=[0.35, -2.5, 0.3], look_target=[0.35, 0.0, 0.0],
         eye_up=[0.0, 0.0, 1.0],
     )
     shape = rrb.Spatial3DView(origin="panel", name="Panel shape (x chord, z deflection)", eye_controls=eye)
-    vg = rrb.Spatial2DView(origin=FLUTTER_VG, name="Flutter mode: damping ratio x 1000 vs airspeed (m/s)")
-    return rrb.Blueprint(rrb.Horizontal(series, rrb.Vertical(shape, vg), column_shares=[3, 2]),
+    right: list[Any] = [shape]
+    if "flutter" in views:
+        right.append(rrb.Spatial2DView(origin=FLUTTER_VG,
+                                       name="Flutter mode: damping ratio x 1000 (up) vs airspeed (m/s)"))
+    if "analysis" in views:
+        right.append(rrb.TextLogView(origin=ANALYSIS, name="Analysis: plateau status and flutter onset"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*series), rrb.Vertical(*right), column_shares=[3, 2]),
                          collapse_panels=True)
 
 
@@ -84,6 +122,7 @@ class RerunLogger:
         application_id: str = "panel_rig",
         recording_name: str | None = None,
         batch_period_s: float = 0.1,
+        views: Collection[str] = OPTIONAL_VIEWS,
     ) -> None:
         if mode not in MODES:
             raise VizError(f"rerun mode must be one of {MODES}, got {mode!r}")
@@ -104,7 +143,7 @@ class RerunLogger:
 
         self._rr = rr
         rec = rr.RecordingStream(application_id, send_properties=True)
-        bp = blueprint(n_modes)
+        bp = blueprint(n_modes, views)
         if mode == "save":
             rec.save(self._save_path(target), default_blueprint=bp)
         else:
@@ -115,6 +154,7 @@ class RerunLogger:
         if recording_name:
             rec.send_recording_name(recording_name)
         self._rec = rec
+        self.views_with_flutter = "flutter" in views
         self._log_styles()
 
     # ----------------------------------------------------------------- public API
@@ -231,39 +271,39 @@ class RerunLogger:
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
 
     def log_flutter_point(self, time_s: float, points: Any, decision: Any, required_margin: float) -> None:
-        """The flutter monitor after a test point: predicted U_f with its interval and the margin on the time
-        line; the identified damping (x 1000, 95 % bars) of every point so far vs airspeed with the damping-trend
-        extrapolation and the predicted U_f as a vertical line (2-D view ``flutter_vg``)."""
+        """The flutter monitor after a test point, one sample per series at ``time_s``: the predicted U_f with its
+        interval (m/s), the margin and the required one (unitless, own entity), the last point's identified damping
+        (x 1000) with its 95 % interval; and the 2-D view ``flutter_vg`` of every point so far (see
+        :func:`vg_scene`)."""
         if self._rec is None:
             return
-        from panel_rig.analysis.flutter_test import trend_curve
-
         rr, rec = self._rr, self._rec
         rec.set_time(TIMELINE, duration=float(time_s))
         pred = decision.prediction
-        if pred is not None and np.isfinite(pred.speed_mps):
-            rec.log(f"{FLUTTER_UF}/estimate", rr.Scalars(float(pred.speed_mps)))
-            for name, v in zip(("ci_low", "ci_high"), pred.ci_mps):
+        if pred is not None:
+            for name, v in zip(("estimate", "ci_low", "ci_high"), (pred.speed_mps, *pred.ci_mps)):
                 if np.isfinite(v):
                     rec.log(f"{FLUTTER_UF}/{name}", rr.Scalars(float(v)))
-            rec.log(FLUTTER_MARGIN, rr.Scalars(float(pred.margin(points[-1].airspeed_mps))))
-        rec.log(f"{FLUTTER_UF}/required_margin", rr.Scalars(float(required_margin)))
-        fl = [p for p in points if p.flutter is not None]
-        if fl:
-            xy = [[p.airspeed_mps, 1e3 * p.flutter.damping_ratio] for p in fl]
-            rec.log(f"{FLUTTER_VG}/identified", rr.Points2D(xy, radii=0.05, colors=[31, 119, 180]))
-            bars = [[[p.airspeed_mps, 1e3 * lo], [p.airspeed_mps, 1e3 * hi]]
-                    for p in fl for lo, hi in [p.flutter.damping_ci()]]
-            rec.log(f"{FLUTTER_VG}/interval", rr.LineStrips2D(bars, colors=[31, 119, 180]))
-        curve = trend_curve(points, decision)
-        if curve is not None:
-            rec.log(f"{FLUTTER_VG}/trend", rr.LineStrips2D([np.column_stack([curve[0], 1e3 * curve[1]])],
-                                                           colors=[255, 127, 14]))
-        if pred is not None and np.isfinite(pred.speed_mps):
-            rec.log(f"{FLUTTER_VG}/predicted_uf", rr.LineStrips2D([[[pred.speed_mps, -2.0], [pred.speed_mps, 10.0]]],
-                                                                  colors=[214, 39, 40]))
-        rec.log(f"{FLUTTER_VG}/zero", rr.LineStrips2D([[[0.0, 0.0], [1.5 * points[-1].airspeed_mps, 0.0]]],
-                                                       colors=[0, 0, 0]))
+            margin = float(pred.margin(points[-1].airspeed_mps))
+            if np.isfinite(margin):
+                rec.log(f"{FLUTTER_MARGIN}/current", rr.Scalars(margin))
+        rec.log(f"{FLUTTER_MARGIN}/required", rr.Scalars(float(required_margin)))
+        e = points[-1].flutter
+        if e is not None:
+            for name, v in zip(("identified", "ci_low", "ci_high"), (e.damping_ratio, *e.damping_ci())):
+                rec.log(f"{FLUTTER_DAMPING}/{name}", rr.Scalars(1e3 * float(v)))
+        from panel_rig.analysis.flutter_test import trend_curve
+
+        uf = float(pred.speed_mps) if pred is not None and np.isfinite(pred.speed_mps) else None
+        for entity, archetype in vg_scene(points, trend_curve(points, decision), uf).items():
+            rec.log(f"{FLUTTER_VG}/{entity}", archetype)
+
+    def log_text(self, time_s: float, entity: str, text: str, warn: bool = False) -> None:
+        """A line of text (level INFO, or WARN) on ``entity`` at ``time_s``, e.g. an analysis result."""
+        if self._rec is None:
+            return
+        self._rec.set_time(TIMELINE, duration=float(time_s))
+        self._rec.log(entity, self._rr.TextLog(text, level="WARN" if warn else "INFO"))
 
     def close(self) -> None:
         """Flush everything; the logger is disabled afterwards. Idempotent."""
@@ -299,6 +339,10 @@ class RerunLogger:
             CONTROL_CMD: ("control command N/m", [148, 103, 189]),
             CONTROL_AGE: ("command age ms", [127, 127, 127]),
         }
+        if self.views_with_flutter:
+            for entity, (name, color) in FLUTTER_STYLES.items():
+                rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
+                rec.log(entity, rr.SeriesPoints(names=name, colors=[color], marker_sizes=4.0), static=True)
         palette = [[255, 127, 14], [148, 103, 189], [140, 86, 75], [227, 119, 194], [23, 190, 207]]
         for i in range(1, self.n_modes + 1):
             styles[modal_entity(i)] = (f"q{i}", palette[(i - 1) % len(palette)])
@@ -309,6 +353,68 @@ class RerunLogger:
                 rr.SeriesLines(names=name, colors=[color], widths=1.5, aggregation_policy=AGGREGATION),
                 static=True,
             )
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
+    """About ``n`` round tick values (1, 2 or 5 x 10^k apart) within [lo, hi]."""
+    raw = max(hi - lo, 1e-9) / n
+    mag = 10.0 ** np.floor(np.log10(raw))
+    step = mag * min((m for m in (1.0, 2.0, 5.0, 10.0) if m * mag >= raw), default=10.0)
+    return np.arange(np.ceil(lo / step) * step, hi + 1e-9 * step, step)
+
+
+def vg_scene(points: Any, trend: tuple[np.ndarray, np.ndarray] | None, uf_mps: float | None) -> dict[str, Any]:
+    """The 2-D damping-vs-airspeed drawing (entity under ``flutter_vg`` -> archetype). A Rerun 2-D view has no
+    plot axes and its y axis points down, so the scene is drawn as a plot: x = airspeed (m/s), y = -k x damping x
+    1000 (positive damping up, k scales the damping range to 0.6 x the airspeed range), framed around the point
+    estimates; 95 % bars, trend and the U_f line are clipped to the frame, and the axes are drawn with
+    labelled ticks. Points have a fixed on-screen size."""
+    import rerun as rr
+
+    fl = [p for p in points if p.flutter is not None]
+    u_all = [p.airspeed_mps for p in points]
+    x_lo = 0.9 * min(u_all)
+    x_hi = max(1.1 * max(u_all), 1.05 * uf_mps if uf_mps is not None else 0.0)
+    z = np.array([1e3 * p.flutter.damping_ratio for p in fl]) if fl else np.zeros(0)
+    z_lo = min(0.0, float(z.min()) if z.size else 0.0)
+    z_hi = max(1.0, float(z.max()) if z.size else 1.0)
+    pad = 0.25 * (z_hi - z_lo)
+    z_lo, z_hi = z_lo - pad, z_hi + pad
+    k = 0.6 * (x_hi - x_lo) / (z_hi - z_lo)
+
+    def y(v: Any) -> Any:
+        return -k * np.clip(v, z_lo, z_hi)
+
+    blue, grey = [31, 119, 180], [90, 90, 90]
+    out: dict[str, Any] = {}
+    xt, zt = _nice_ticks(x_lo, x_hi), _nice_ticks(z_lo, z_hi)
+    tick_x, tick_y = 0.012 * (x_hi - x_lo), 0.012 * (x_hi - x_lo)
+    out["axes/lines"] = rr.LineStrips2D(
+        [[[x_lo, y(z_lo)], [x_hi, y(z_lo)]], [[x_lo, y(z_lo)], [x_lo, y(z_hi)]]]
+        + [[[u, y(z_lo)], [u, y(z_lo) + tick_y]] for u in xt] + [[[x_lo, y(v)], [x_lo - tick_x, y(v)]] for v in zt],
+        colors=[grey], radii=rr.Radius.ui_points(1.0))
+    # the label points, plus a bare one below them: the view frames the points' positions, not their labels
+    out["axes/x_ticks"] = rr.Points2D([[u, y(z_lo) + 2 * tick_y] for u in xt] + [[x_lo, y(z_lo) + 9 * tick_y]],
+                                      labels=[f"{u + 0.0:g}" for u in xt] + [""],
+                                      radii=rr.Radius.ui_points(0.5), colors=[grey], show_labels=True)
+    out["axes/y_ticks"] = rr.Points2D([[x_lo - 4 * tick_x, y(v)] for v in zt], labels=[f"{v + 0.0:g}" for v in zt],
+                                      radii=rr.Radius.ui_points(0.5), colors=[grey], show_labels=True)
+    out["zero"] = rr.LineStrips2D([[[x_lo, 0.0], [x_hi, 0.0]]], colors=[0, 0, 0], radii=rr.Radius.ui_points(1.0))
+    if fl:
+        u = [p.airspeed_mps for p in fl]
+        out["identified"] = rr.Points2D(np.column_stack([u, y(z)]), radii=rr.Radius.ui_points(5.0), colors=[blue])
+        bars = [[[p.airspeed_mps, y(1e3 * lo)], [p.airspeed_mps, y(1e3 * hi)]]
+                for p in fl for lo, hi in [p.flutter.damping_ci()]]
+        out["interval"] = rr.LineStrips2D(bars, colors=[blue], radii=rr.Radius.ui_points(1.5))
+    if trend is not None:
+        keep = (trend[0] >= x_lo) & (trend[0] <= x_hi)
+        out["trend"] = rr.LineStrips2D([np.column_stack([trend[0][keep], y(1e3 * trend[1][keep])])],
+                                       colors=[255, 127, 14], radii=rr.Radius.ui_points(1.5))
+    if uf_mps is not None:
+        out["predicted_uf"] = rr.LineStrips2D([[[uf_mps, y(z_lo)], [uf_mps, y(z_hi)]]], colors=[214, 39, 40],
+                                              radii=rr.Radius.ui_points(1.5),
+                                              labels=[f"U_f {uf_mps:.2f} m/s"], show_labels=True)
+    return out
 
 
 def _strip_points(x_m: np.ndarray, z_m: np.ndarray, caller: str) -> np.ndarray:
