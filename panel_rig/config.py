@@ -100,8 +100,7 @@ class _Spec:
     def check(self, key: str, value: Any) -> Any:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
         if self.kind is float:
-            if isinstance(value, str) and float_from_text(value) is not None:
-                value = float_from_text(value)  # `5e-6`: text to YAML 1.1, a number to rcl and to the reader
+            value = number_if_text(value)  # `5e-6`: text to YAML 1.1, a number to rcl and to the reader
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ConfigError(f"{key}: expected a number, got {value!r}")
             value = float(value)
@@ -262,6 +261,12 @@ def float_from_text(text: str) -> float | None:
     parameter parser reads them as numbers, and so do we), or None; not Python's wider syntax (``1_0``, ``nan``,
     ``infinity``)."""
     return float(text) if _NUMBER_TEXT.fullmatch(text.strip()) else None
+
+
+def number_if_text(value: Any) -> Any:
+    """``value`` as :func:`float_from_text` reads it when it is a text spelling a number; unchanged otherwise."""
+    number = float_from_text(value) if isinstance(value, str) else None
+    return value if number is None else number
 
 
 def parse_override(text: str) -> tuple[str, Any]:

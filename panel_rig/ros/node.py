@@ -34,7 +34,15 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat, float_from_text, read_params_file
+from panel_rig.config import (
+    SCHEMA,
+    ConfigError,
+    PanelConfig,
+    config_from_flat,
+    float_from_text,
+    number_if_text,
+    read_params_file,
+)
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
@@ -896,9 +904,8 @@ def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
             raise StartupError(str(exc)) from None
     table = parameter_table()
     for name, value in values.items():  # `publish_rate_hz: 1e3` is text to YAML 1.1, a number to rcl's --params-file
-        if isinstance(value, str) and name in table and isinstance(table[name][0], float):
-            number = float_from_text(value)
-            values[name] = value if number is None else number
+        if name in table and isinstance(table[name][0], float):
+            values[name] = number_if_text(value)
     return [Parameter(name, value=value) for name, value in values.items()]
 
 

@@ -34,11 +34,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from panel_rig.config import ConfigError, float_from_text, load_yaml_file
+from panel_rig.config import ConfigError, load_yaml_file, number_if_text
 from panel_rig.processes import StopRequest
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 from panel_rig.topics import REJECTED_SUFFIX
 
+#: the operator's commands and their topics (relative to the rig's namespace)
+COMMAND_TOPICS = {"airspeed": "airspeed_cmd", "force": "shaker/force_cmd", "amplitude": "shaker/amplitude_cmd",
+                  "frequency": "shaker/frequency_cmd"}
 KINDS = ("airspeed", "ramp", "dwell_s", "shaker", "force", "abort", "reset")
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 DIAGNOSTICS_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)  # /diagnostics: every message
@@ -85,8 +88,7 @@ class StepSummary:
 
 
 def _number(i: int, key: str, v: Any, lo: float = -math.inf) -> float:
-    if isinstance(v, str) and float_from_text(v) is not None:
-        v = float_from_text(v)  # 1e3: text to YAML 1.1, a number to us (as in parameters files)
+    v = number_if_text(v)  # 1e3: text to YAML 1.1, a number to us (as in parameters files)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < lo:
         rule = "a finite number" + ("" if lo == -math.inf else f" >= {lo:g}")
         raise ProfileError(f"step {i + 1} ({key}): expected {rule}, got {v!r}")
@@ -183,22 +185,13 @@ class Operator(Node):
         self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
         # set by main's SIGINT/SIGTERM handler; the profile stops at the next spin (see _spin)
         self.stop_requested = stop if stop is not None else threading.Event()
-        self.pubs = {
-            name: self.create_publisher(Float64, topic, COMMAND_QOS)
-            for name, topic in (
-                ("airspeed", "airspeed_cmd"),
-                ("force", "shaker/force_cmd"),
-                ("amplitude", "shaker/amplitude_cmd"),
-                ("frequency", "shaker/frequency_cmd"),
-            )
-        }
+        self.pubs = {name: self.create_publisher(Float64, topic, COMMAND_QOS) for name, topic in COMMAND_TOPICS.items()}
         # the rig echoes each command it refuses on <topic>/rejected: the step that sent it is marked
         self._sent: list[tuple[str, float, StepSummary | None]] = []  # (command, value, step), oldest first
         self._echoes = [
             self.create_subscription(Float64, topic + REJECTED_SUFFIX,
                                      lambda msg, name=name: self._on_rejected(name, msg.data), COMMAND_QOS)
-            for name, topic in (("airspeed", "airspeed_cmd"), ("force", "shaker/force_cmd"),
-                                ("amplitude", "shaker/amplitude_cmd"), ("frequency", "shaker/frequency_cmd"))]
+            for name, topic in COMMAND_TOPICS.items()]
         self._step: StepSummary | None = None  # the step being played
         self.clients_ = {name: self.create_client(Trigger, name) for name in ("reset", "abort")}
         self.commanded_mps = 0.0

@@ -24,7 +24,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from panel_rig.config import SCHEMA, ConfigError, config_from_flat, float_from_text, load_yaml_file, read_params_file
+from panel_rig.config import SCHEMA, ConfigError, config_from_flat, load_yaml_file, number_if_text, read_params_file
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 
@@ -100,8 +100,7 @@ def _config_key(where: str, key: Any) -> str:
 
 
 def _number(where: str, x: Any, positive: bool = False, integer: bool = False) -> float:
-    if isinstance(x, str) and float_from_text(x) is not None:
-        x = float_from_text(x)  # 7.06e10: text to YAML 1.1, a number to rcl's parser and to every reader here
+    x = number_if_text(x)  # 7.06e10: text to YAML 1.1, a number to rcl's parser and to every reader here
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         raise _fail(where, f"expected a number, got {x!r}")
     if integer and not float(x).is_integer():
