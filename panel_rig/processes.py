@@ -3,6 +3,7 @@ test), and our own ROS programs (node, controller, operator) on SIGINT / SIGTERM
 
 from __future__ import annotations
 
+import os
 import random
 import signal
 import subprocess
@@ -30,22 +31,33 @@ def private_domain_id() -> int:
     return random.randint(*PRIVATE_DOMAINS)
 
 
-def spawn(cmd: list[str], **kwargs: object) -> subprocess.Popen:
+#: set by :func:`spawn` in its child's environment: the parent's process id, for :func:`follow_parent`
+PARENT_ENV = "PANEL_RIG_PARENT_PID"
+
+
+def spawn(cmd: list[str], env: dict[str, str] | None = None, **kwargs: object) -> subprocess.Popen:
     """A child program of a one-command session (node, operator, controller) in its own session: a Ctrl-C in the
     terminal reaches the session's own program only, which then stops its children in order (wind off first,
-    then the node, whose bag it closes). Should the parent die without stopping them (SIGKILL), the kernel sends
-    the child SIGTERM (Linux's parent-death signal), which stops it cleanly too."""
-    return subprocess.Popen(cmd, start_new_session=True, preexec_fn=_terminate_with_parent, **kwargs)  # noqa: PLW1509
+    then the node, whose bag it closes). Should the parent die without stopping them (SIGKILL), the child stops
+    too (:func:`follow_parent`, called by the child itself: no code runs between fork and exec)."""
+    env = dict(os.environ if env is None else env, **{PARENT_ENV: str(os.getpid())})
+    return subprocess.Popen(cmd, start_new_session=True, env=env, **kwargs)
 
 
-def _terminate_with_parent() -> None:
-    """In the child, before exec: SIGTERM when the parent dies (prctl PR_SET_PDEATHSIG; Linux only)."""
+def follow_parent() -> None:
+    """In a child started by :func:`spawn`: SIGTERM when the parent dies (Linux's PR_SET_PDEATHSIG), or now if it
+    already has; the program's SIGTERM handling then stops it cleanly. Nothing without the parent's mark."""
+    parent = os.environ.pop(PARENT_ENV, None)  # not inherited further
+    if parent is None:
+        return
     import ctypes
 
     try:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
     except (OSError, AttributeError):
-        pass  # not Linux: the parent's own stop handling remains
+        return  # not Linux: the parent's own stop handling remains
+    if os.getppid() != int(parent):  # the parent died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 @contextmanager

@@ -12,7 +12,7 @@ from contextlib import contextmanager
 import rclpy
 from rclpy.signals import SignalHandlerOptions
 
-from panel_rig.processes import signals_set
+from panel_rig.processes import follow_parent, signals_set
 
 
 @contextmanager
@@ -20,6 +20,7 @@ def ros_session(args: Sequence[str], stop: threading.Event) -> Iterator[None]:
     """``rclpy.init(args)`` for the block; a signal sets ``stop`` (the program's spin loop ends between rclpy calls);
     the context is shut down on leaving (the program destroys its node before), then the previous handlers return."""
     with signals_set(stop):
+        follow_parent()  # a child of a one-command session stops with it (its SIGTERM sets ``stop``)
         rclpy.init(args=list(args), signal_handler_options=SignalHandlerOptions.NO)
         try:
             yield
