@@ -282,23 +282,23 @@ def test_interrupted_recover_leaves_no_partial_output(tmp_path: Path, monkeypatc
 
 def test_ctrl_c_while_the_recovered_file_is_put_in_place_is_held(tmp_path: Path,
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
-    """A Ctrl-C between renaming the original to .broken and the recovered copy into its place would leave a bag
-    without its .mcap: it is held until the recovered bag and its metadata.yaml are in place."""
+    """A Ctrl-C between giving the original its .broken name and the recovered copy its place is held until the
+    recovered bag and its metadata.yaml are in place (a half-swapped bag has two names for its damaged data)."""
     import signal
 
     import panel_rig.recording.recover as recover
 
     bag, path = _copy(tmp_path)
     _flip_bit(path, path.stat().st_size // 2)
-    real_replace = os.replace
+    real_link = os.link
 
-    def replace_then_ctrl_c(src: object, dst: object) -> None:
-        real_replace(src, dst)
+    def link_then_ctrl_c(src: object, dst: object) -> None:
+        real_link(src, dst)
         if str(dst).endswith(".broken"):
             os.kill(os.getpid(), signal.SIGINT)
 
     with monkeypatch.context() as mp:
-        mp.setattr(recover.os, "replace", replace_then_ctrl_c)
+        mp.setattr(recover.os, "link", link_then_ctrl_c)
         with pytest.raises(KeyboardInterrupt):
             recover_bag(bag)
     assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
@@ -318,6 +318,61 @@ def test_stale_recovering_file_of_a_killed_recover_is_removed(tmp_path: Path,
     assert "recovered" in out[1]
     assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
     assert _mcap_count(path)[0] == sum(_rosbags_counts(bag).values()) > 0
+
+
+KILL_BEFORE_PUT_IN_PLACE = """
+import os, signal, sys
+import panel_rig.recording.recover as recover
+real_replace = os.replace
+def replace(src, dst):
+    if str(src).endswith(".recovering"):  # SIGKILL: no handler can hold it
+        os.kill(os.getpid(), signal.SIGKILL)
+    real_replace(src, dst)
+recover.os.replace = replace
+recover.recover_bag(sys.argv[1])
+"""
+
+
+def test_recover_killed_before_the_recovered_file_is_in_place_leaves_the_mcap(tmp_path: Path) -> None:
+    """A recover SIGKILLed between renaming the original to .broken and the recovered copy into its place left a
+    bag without its .mcap. Now the original's second name is a hard link: the .mcap is there at every instant, and
+    the next recover removes the leftovers (named) and ends as a clean one does."""
+    bag, path = _copy(tmp_path)
+    _flip_bit(path, path.stat().st_size // 2)
+    original = path.read_bytes()
+    done = subprocess.run([sys.executable, "-c", KILL_BEFORE_PUT_IN_PLACE, str(bag)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == -9, done.stderr
+    assert path.read_bytes() == original  # the bag still has its (damaged) .mcap, unchanged
+    report = recover_bag(bag)
+    assert any(f"removed {MCAP}.recovering" in n for n in report.notes), report.notes
+    assert any(f"removed {MCAP}.broken, a second name" in n for n in report.notes), report.notes
+    assert report.dropped_chunks == 1
+    assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
+    assert (bag / (MCAP + ".broken")).read_bytes() == original
+    assert scan_mcap(path).ok and _mcap_count(path)[0] == sum(_rosbags_counts(bag).values())
+
+
+def test_recover_without_hard_links_renames(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the file system refuses hard links the original is renamed to .broken instead: the same result."""
+    import errno
+
+    import panel_rig.recording.recover as recover
+
+    bag, path = _copy(tmp_path)
+    _flip_bit(path, path.stat().st_size // 2)
+    original = path.read_bytes()
+
+    def no_link(src: object, dst: object) -> None:
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(recover.os, "link", no_link)
+        report = recover_bag(bag)
+    assert report.dropped_chunks == 1 and not report.notes
+    assert sorted(p.name for p in bag.iterdir()) == sorted([MCAP, MCAP + ".broken", "metadata.yaml"])
+    assert (bag / (MCAP + ".broken")).read_bytes() == original
+    assert scan_mcap(path).ok
 
 
 # ------------------------------------------------------------------------------ damaged metadata.yaml

@@ -172,6 +172,53 @@ def _sigint_deferred() -> Iterator[None]:
                 raise KeyboardInterrupt
 
 
+def _put_in_place(tmp: Path, mcap_path: Path, broken: Path) -> None:
+    """The original keeps its data as `broken`, the recovered `tmp` takes its name. The original is first given
+    its second name as a hard link, so the bag has its .mcap at every instant (a recover killed by SIGKILL, which
+    no handler can hold, between two renames left a bag without one); where the file system has no hard links, two
+    renames, undone on an error."""
+    try:
+        os.link(mcap_path, broken)
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.EXDEV, errno.EOPNOTSUPP, errno.EMLINK):
+            tmp.unlink(missing_ok=True)
+            raise
+    else:
+        try:
+            os.replace(tmp, mcap_path)
+        except BaseException:
+            broken.unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
+            raise
+        return
+    try:
+        os.replace(mcap_path, broken)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    try:
+        os.replace(tmp, mcap_path)
+    except BaseException:
+        os.replace(broken, mcap_path)
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _remove_leftovers(mcap_path: Path) -> list[str]:
+    """Remove what a killed recover leaves next to `mcap_path`: its partial `.recovering` output, and a `.broken`
+    that is only a second name of the .mcap itself (killed before the recovered file took its place); one note
+    each."""
+    notes = []
+    for stale in sorted(mcap_path.parent.glob(mcap_path.name + ".recovering*")):
+        stale.unlink()
+        notes.append(f"removed {stale.name}, the partial output of an interrupted recover")
+    for link in sorted(mcap_path.parent.glob(mcap_path.name + ".broken*")):
+        if link.is_file() and os.path.samefile(link, mcap_path):
+            link.unlink()
+            notes.append(f"removed {link.name}, a second name of {mcap_path.name} left by an interrupted recover")
+    return notes
+
+
 def _lock(bag_dir: Path) -> BagLock | None:
     """Hold the bag's lock while recovering (a second recover, or a writer, is refused); None in a directory we
     cannot write (then nothing there is changed either, unless a write fails with its own error)."""
@@ -219,9 +266,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
         os.replace(bag_dir / METADATA_FILE, damaged)
         notes.append(f"{bag_dir / METADATA_FILE} was unreadable: kept as {damaged.name}, rebuilt from {mcap_path.name}")
-    for stale in sorted(mcap_path.parent.glob(mcap_path.name + ".recovering*")):
-        stale.unlink()
-        notes.append(f"removed {stale.name}, the partial output of an interrupted recover")
+    notes += _remove_leftovers(mcap_path)
     if scan.ok:
         if not (bag_dir / METADATA_FILE).is_file():
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
@@ -237,17 +282,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         raise
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
     with _sigint_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
-        try:
-            os.replace(mcap_path, broken)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-        try:
-            os.replace(tmp, mcap_path)
-        except BaseException:
-            os.replace(broken, mcap_path)
-            tmp.unlink(missing_ok=True)
-            raise
+        _put_in_place(tmp, mcap_path, broken)
         write_metadata(bag_dir, summary)
     report = RecoverReport(
         bag_dir=bag_dir, mcap_path=mcap_path, was_complete=False, broken_path=broken,
