@@ -79,7 +79,7 @@ def install(bag: Path, dest: Path) -> None:
 
 
 def main() -> int:
-    from panel_rig.cli import analyze_bag, format_table
+    from panel_rig.analyze_cli import analyze_bag, format_table
 
     dest = ROOT / "bags" / NAME
     with tempfile.TemporaryDirectory() as tmp:

@@ -2,7 +2,7 @@
 
 Starts the rig node in fast mode as a subprocess (own ROS domain, localhost discovery, logs under
 ``out/``) recording a bag and a Rerun ``.rrd``, plays ``config/staircase.yaml`` with the scripted
-operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.cli.analyze_bag``
+operator, stops the node with SIGINT, then analyses the new bag (if ``panel_rig.analyze_cli.analyze_bag``
 exists) into PNGs and prints what happened.
 """
 
@@ -42,7 +42,7 @@ def _new_bag(bag_dir: Path, before: set[str]) -> Path | None:
 
 def _analyze(bag: Path, out: Path) -> str:
     """Analyse the new bag: PNGs and analysis.json into out; returns the human-readable table."""
-    from panel_rig.cli import analyze_bag, format_table
+    from panel_rig.analyze_cli import analyze_bag, format_table
 
     result = analyze_bag(bag, plots_dir=out)
     (out / "analysis.json").write_text(jsonio.dumps(result, indent=1, default=str))

@@ -23,8 +23,8 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from panel_rig.cli import analyze_bag
-from panel_rig.cli import analyze_main as main
+from panel_rig.analyze_cli import analyze_bag
+from panel_rig.analyze_cli import analyze_main as main
 from panel_rig.recording import BagWriter
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -541,7 +541,7 @@ def test_an_intact_mcap_of_other_messages_is_not_sent_to_recover(tmp_path: Path,
 def test_a_run_without_an_unstable_plateau_reports_no_onset() -> None:
     """A run that stays stable printed "flutter onset bracket: 0.00 .. - m/s", read as an onset found."""
     from panel_rig.analysis.bag_analysis import estimate_onset
-    from panel_rig.cli import format_table
+    from panel_rig.analyze_cli import format_table
 
     plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 10.0, "airspeed_mps": 6.0, "rms_tip_w_over_L": 1e-5,
                "peak_tip_w_over_L": 3e-5, "dominant_frequency_hz": 26.0, "growth_rate_per_s": -0.5,

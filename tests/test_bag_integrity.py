@@ -21,7 +21,7 @@ pytest.importorskip("rosbags")
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from panel_rig.cli import analyze_main
+from panel_rig.analyze_cli import analyze_main
 from panel_rig.recording import CorruptBagError, main_bag_recover, read_bag, recover_bag, scan_mcap, verify_bag
 
 ROOT = Path(__file__).resolve().parents[1]

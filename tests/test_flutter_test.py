@@ -139,7 +139,7 @@ def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
     assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=0.1)
     # replay: the same identification on the bag gives the same points (the recorded tip resampled on the
     # recorded stamps), and a prediction
-    from panel_rig.cli import analyze_bag
+    from panel_rig.analyze_cli import analyze_bag
 
     ft = analyze_bag(out["bag"])["flutter_test"]
     assert [p["airspeed_mps"] for p in ft["test_points"]] == pytest.approx(

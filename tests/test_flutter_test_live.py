@@ -90,7 +90,7 @@ def test_live_dwell_is_in_simulated_time_and_the_node_holds_for_the_client(live_
 def test_analyze_replays_the_live_identification(live_run):
     """`panel-rig analyze BAG` on the node's bag cuts the same windows (the node's flutter_test.* parameters are
     in the bag) and identifies the same points."""
-    from panel_rig.cli import analyze_bag
+    from panel_rig.analyze_cli import analyze_bag
 
     _, out, _, _ = live_run
     ft = analyze_bag(out["bag"])["flutter_test"]

@@ -488,7 +488,7 @@ def test_recover_and_analyze_refuse_a_bag_being_recorded(tmp_path: Path, capsys:
     the bag's lock: recover refuses in one line (exit 2) and touches nothing, analyze says it is being recorded."""
     from rosbags.highlevel import AnyReader
 
-    from panel_rig.cli import analyze_main
+    from panel_rig.analyze_cli import analyze_main
     from panel_rig.recording import verify_bag
 
     bag_dir = tmp_path / "live"
@@ -538,7 +538,7 @@ def test_lock_of_a_killed_recorder_blocks_nothing(tmp_path: Path, capsys: pytest
     lock file it leaves blocks neither analyze's 'recover it' advice nor `bag recover`, which removes it."""
     from rosbags.highlevel import AnyReader
 
-    from panel_rig.cli import analyze_main
+    from panel_rig.analyze_cli import analyze_main
 
     bag_dir = tmp_path / "killed"
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))

@@ -123,7 +123,7 @@ def test_monitor_series_are_logged_at_every_point_and_the_margin_off_the_mps_axi
 def test_analyze_rerun_logs_the_replay_plateaus_and_onset_and_only_views_with_data(tmp_path: Path) -> None:
     """Finding 3: `analyze bags/stiffness_staircase --rerun` left the flutter-mode view empty though the replay
     identified a point at 10.2 m/s, logged no plateau status or onset, and had three empty views."""
-    from panel_rig.cli import analyze_bag
+    from panel_rig.analyze_cli import analyze_bag
 
     res = analyze_bag(ROOT / "bags" / "stiffness_staircase", rerun_path=tmp_path / "ref.rrd")
     rows = _temporal(tmp_path / "ref.rrd")

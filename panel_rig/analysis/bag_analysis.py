@@ -1,6 +1,6 @@
 """Airspeed plateaus, LCO status and the flutter onset of a recorded run: pure functions on arrays.
 
-Used by `panel-rig analyze BAG` (panel_rig.cli), which loads the bag with
+Used by `panel-rig analyze BAG` (panel_rig.analyze_cli), which loads the bag with
 :func:`panel_rig.recording.series.load_series`. Nothing here reads files or knows about bags.
 
 Criteria (defaults in :class:`Criteria`, all reported in the JSON output):

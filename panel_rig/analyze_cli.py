@@ -1,0 +1,275 @@
+"""``panel-rig analyze``: glue between the bag loader (:mod:`panel_rig.recording.series`) and the analysis
+(:mod:`panel_rig.analysis.bag_analysis`): the plateau table and onset, the flutter-test replay, PNG plots and a
+Rerun replay of a recording. Bad or damaged bags exit with status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from panel_rig import jsonio
+from panel_rig.config import ConfigError, PanelConfig
+from panel_rig.model.options import VARIANTS
+from panel_rig.paths import make_output_dir, rrd_path_problem
+
+ANALYZE_PROG = "panel-rig analyze"
+
+
+def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None) -> dict[str, Any]:
+    """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`.
+
+    Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
+
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
+    from panel_rig.recording.series import load_series
+
+    crit = criteria if criteria is not None else Criteria()
+    rec = load_series(Path(bag_dir), shapes=rerun_path is not None)
+    core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
+    result: dict[str, Any] = {
+        "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
+        "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
+        "refused_commands": rec.refused_commands, **core,
+    }
+    result["flutter_test"], ft_points = _replay_flutter_test(rec)
+    result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
+                       if plots_dir is not None else [])
+    result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
+                       else None)
+    return result
+
+
+def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
+    """The flutter-test replay's JSON part (see :func:`_replay_flutter_test`)."""
+    return _replay_flutter_test(rec)[0]
+
+
+def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
+    """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
+    per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
+    the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
+    bag has no airspeed commands or the model does not flutter. With it the identified points (TestPoint)."""
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.config import SCHEMA, config_from_flat
+    from panel_rig.model.stepper import Stepper
+
+    cmds = rec.commands.get("airspeed_cmd", [])
+    if not cmds:
+        return None, []
+    try:
+        cfg = config_from_flat({k: v for k, v in rec.parameters.items() if k in SCHEMA})
+    except ConfigError:
+        cfg = PanelConfig()
+    variant = rec.parameters.get("model.variant", "full")
+    model = Stepper(cfg, variant=variant if variant in VARIANTS else "full").model
+    found = model_flutter_speed(model)
+    if found is None:
+        return None, []
+    uf, mode = found
+    force = rec.force_npm if np.any(rec.force_npm) else None
+    # a node run with the flutter monitor recorded its test-point window: replay exactly that window
+    # (a run without the monitor records the flutter_test.* defaults too: its plateaus are replayed whole)
+    monitored = rec.parameters.get("flutter_monitor") is True
+    window = {k: float(rec.parameters[f"flutter_test.{k}"]) for k in ("settle_s", "dwell_s")
+              if monitored and isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
+    points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
+                           rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps, **window)
+    margin = float(rec.parameters.get("flutter_test.margin", 0.1))
+    out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
+                           "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
+                           "prediction_method": None}
+    if points:
+        d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
+        if d.prediction is not None:
+            pd = d.prediction.as_dict()  # open (infinite) bounds as null
+            out.update(predicted_flutter_speed_mps=pd["predicted_flutter_speed_mps"],
+                       predicted_flutter_speed_ci_mps=pd["predicted_flutter_speed_ci_mps"],
+                       prediction_method=d.prediction.method,
+                       margin=d.prediction.margin(points[-1].airspeed_mps))
+    return out, points
+
+
+def _bound(x: float | None) -> str:
+    """An interval bound for a table: ``open`` when there is none (the bootstrap draws did not all cross)."""
+    return "open" if x is None else f"{x:.2f}"
+
+
+def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = ()) -> str:
+    """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live), with the analysis of
+    ``result``: the plateaus' status and the onset (text log), and the flutter-test replay's identified points
+    (flutter monitor views). The blueprint holds only views with data: control views when the bag has control
+    commands, the flutter views when the replay identified a point, the analysis log when there are plateaus."""
+    from panel_rig.viz import RerunLogger
+
+    n_modes = max(1, rec.q.shape[1])
+    q = rec.q if rec.q.shape[1] else np.zeros((rec.t_s.size, 1))
+    result = result or {}
+    control = rec.commands.get("control/force_cmd", [])
+    replayed = _replay_times(rec, result, ft_points)
+    decisions = _replay_decisions(ft_points, rec.parameters)
+    views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (
+        ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
+        ("analysis",) if result.get("plateaus") else ())
+    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views)
+    try:
+        logger.log_batch(rec.t_s, rec.tip_w_over_L, q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
+        for name, events in rec.commands.items():
+            for t, value in events:
+                logger.on_command(name, value, True, t)
+        for t, value in control:  # the command's age is not in the bag: 0
+            logger.log_control(t, value, 0.0)
+        for t, x, z in rec.shapes:
+            logger.log_shape(t, x, z)
+        margin = float(rec.parameters.get("flutter_test.margin", 0.1))
+        for k, (t, d) in enumerate(zip(replayed, decisions), start=1):
+            logger.log_flutter_point(t, ft_points[:k], d, margin)
+        _log_analysis(logger, result)
+    finally:
+        logger.close()
+    return str(path)
+
+
+def _replay_times(rec: Any, result: dict[str, Any], points: list[Any]) -> list[float]:
+    """When each replayed point was identified: the end of the analysed plateau at its airspeed (the end of the
+    recording when none matches)."""
+    ends = [(p["airspeed_mps"], p["t_end_s"]) for p in result.get("plateaus") or []]
+    t_last = float(rec.t_s[-1]) if rec.t_s.size else 0.0
+    return [min((t for u, t in ends if abs(u - p.airspeed_mps) < 0.05), default=t_last) for p in points]
+
+
+def _replay_decisions(points: list[Any], parameters: dict[str, Any]) -> list[Any]:
+    """The decision the flutter test would take after each replayed point (as :func:`_replay_flutter_test`)."""
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, decide
+
+    if not points:
+        return []
+    margin = float(parameters.get("flutter_test.margin", 0.1))
+    settings = FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin)
+    return [decide(points[:k], settings) for k in range(1, len(points) + 1)]
+
+
+def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
+    """Each plateau's status at its end and the onset line at the end of the last plateau (text log)."""
+    plateaus = result.get("plateaus") or []
+    for p in plateaus:
+        logger.log_text(p["t_end_s"], "analysis/plateaus",
+                        f"plateau {p['index']}: {p['airspeed_mps']:.2f} m/s {p['status']} (rms w/L "
+                        f"{p['rms_tip_w_over_L']:.3g}, peak {p['peak_tip_w_over_L']:.3g}, "
+                        f"{p['dominant_frequency_hz']:.2f} Hz, rate {p['growth_rate_per_s']:.3f} 1/s)",
+                        warn=p["status"] in ("lco", "growing"))
+    if plateaus and result.get("onset"):
+        lines = format_table({**result, "plateaus": [], "flutter_test": None, "plots": [], "rerun": None,
+                              "refused_commands": {}, "gaps": []}).splitlines()
+        onset = next(line for line in lines if line.startswith("flutter onset"))
+        logger.log_text(plateaus[-1]["t_end_s"], "analysis/onset", onset,
+                        warn=result["onset"]["bracket_high_mps"] is not None)
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """Human-readable plateau table and onset lines of an `analyze_bag` result."""
+    head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
+            f"{'rate_1/s':>8} status")
+    lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
+             f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})"]
+    refused = result.get("refused_commands") or {}
+    if refused:
+        lines.append("commands the rig refused (left out): "
+                     + ", ".join(f"{topic} {count}" for topic, count in sorted(refused.items())))
+    gaps = result.get("gaps") or []
+    if gaps:
+        lines.append("gaps in the recording (data lost, e.g. a chunk a recovery dropped; no plateau spans one): "
+                     + ", ".join(f"{g['from_s']:.2f}-{g['to_s']:.2f} s" for g in gaps))
+    lines.append(head)
+    for p in result["plateaus"]:
+        lines.append(
+            f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
+            f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {p['dominant_frequency_hz']:>6.2f} "
+            f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
+        )
+    o = result["onset"]
+
+    def num(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f}"
+
+    if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
+        lines.append("flutter onset: no plateau was unstable"
+                     + ("" if o["bracket_low_mps"] is None else f" (stable up to {num(o['bracket_low_mps'])} m/s)")
+                     + f"; extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s")
+    else:
+        lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
+                     f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
+                     f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+    ft = result.get("flutter_test")
+    if ft and ft["test_points"]:
+        lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")
+        for p in ft["test_points"]:
+            ci = p["damping_ci"]
+            lines.append(f"   U {p['airspeed_mps']:7.3f} m/s  f {num(p['frequency_hz'])} Hz  zeta "
+                         + ("-" if p["damping_ratio"] is None else
+                            f"{p['damping_ratio']:.4f} [{ci[0]:.4f}, {ci[1]:.4f}]") + f"  {p['method']}")
+        ci = ft["predicted_flutter_speed_ci_mps"]
+        lines.append(f"   predicted U_f {num(ft['predicted_flutter_speed_mps'])} m/s"
+                     + ("" if ci is None else f" (95 % {_bound(ci[0])} .. {_bound(ci[1])})")
+                     + f" [{ft['prediction_method']}]; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
+    for path in result.get("plots") or []:
+        lines.append(f"plot: {path}")
+    if result.get("rerun"):
+        lines.append(f"rerun: {result['rerun']}")
+    return "\n".join(lines)
+
+
+def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
+    """The `analyze` options."""
+    p.add_argument("bag", metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--plots", metavar="DIR", help="write time_history/spectrogram/lco_vs_airspeed PNGs here")
+    p.add_argument("--rerun", metavar="OUT.rrd", help="write the replay as a Rerun recording")
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    """0 ok; 2 bad or damaged bag (one stderr line; a damaged one names `panel-rig bag recover`);
+    1 cannot write outputs."""
+    from panel_rig.recording.errors import RecordingError
+
+    problem = rrd_path_problem(args.rerun) if args.rerun is not None else None
+    if problem:  # before the analysis: a --rerun that cannot be written threw the whole result away
+        print(f"{ANALYZE_PROG}: --rerun: {problem}", file=sys.stderr)
+        return 2
+    if args.plots is not None:
+        try:  # likewise a --plots directory that cannot be made
+            make_output_dir(args.plots, "--plots")
+        except ValueError as exc:
+            print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+            return 2
+    try:
+        result = analyze_bag(args.bag, args.plots, args.rerun)
+    except RecordingError as exc:
+        print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"{ANALYZE_PROG}: {exc.filename or args.bag}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - e.g. VizError: never a traceback
+        print(f"{ANALYZE_PROG}: {args.bag}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+    print(jsonio.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
+def analyze_main(argv: Sequence[str] | None = None) -> int:
+    """`panel-rig analyze BAG [--json] [--plots DIR] [--rerun OUT.rrd]` on its own (usage error: exit 2)."""
+
+    class _AnalyzeParser(argparse.ArgumentParser):
+        def error(self, message: str) -> None:  # one line, status 2
+            print(f"{ANALYZE_PROG}: {message}", file=sys.stderr)
+            raise SystemExit(2)
+
+    parser = _AnalyzeParser(prog=ANALYZE_PROG, description="airspeed plateaus, LCO and flutter onset from a bag")
+    add_analyze_arguments(parser)
+    return cmd_analyze(parser.parse_args(argv))
