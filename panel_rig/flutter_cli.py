@@ -207,61 +207,10 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
                wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
     if plot is not None:
+        from panel_rig.analysis.plots import plot_flutter_test
+
         out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
     return out
-
-
-def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Path) -> Path:
-    """V-g of the model (frequency and damping of every mode) with the identified points (95 % bars) and the
-    damping-trend extrapolation to the predicted U_f."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from panel_rig.analysis.flutter_test import trend_curve
-    from panel_rig.analysis.vg import vg_diagram
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pts = [p for p in res.points if p.flutter is not None]
-    u_hi = max([uf * 1.1] + [p.airspeed_mps for p in res.points])
-    grid = np.linspace(0.3 * uf, u_hi, 60)
-    vg = vg_diagram(model, grid)
-    fig, (ax_z, ax_f) = plt.subplots(2, 1, figsize=(7, 7), sharex=True)
-    for k in range(vg.poles.shape[1]):
-        ls = "-" if k == mode - 1 else ":"
-        ax_z.plot(grid, vg.damping_ratio[:, k], ls, color="0.5", lw=1, label="model V-g" if k == 0 else None)
-        ax_f.plot(grid, vg.frequency_hz[:, k], ls, color="0.5", lw=1)
-    if pts:
-        u = np.array([p.airspeed_mps for p in pts])
-        z = np.array([p.flutter.damping_ratio for p in pts])
-        zci = np.array([p.flutter.damping_ci() for p in pts])
-        ax_z.errorbar(u, z, yerr=[z - zci[:, 0], zci[:, 1] - z], fmt="o", color="C0", capsize=3,
-                      label="identified (95 %)")
-        f = np.array([p.flutter.frequency_hz for p in pts])
-        ax_f.plot(u, f, "o", color="C0")
-        d = res.final
-        curve = trend_curve(res.points, d)
-        if curve is not None:
-            ax_z.plot(*curve, "--", color="C1", label="damping trend (quadratic in q)")
-        if d is not None and d.prediction is not None and np.isfinite(d.prediction.speed_mps):
-            lo, hi = d.prediction.ci_mps  # an open upper bound (inf) is drawn to the plot's edge, labelled
-            ax_z.axvspan(lo, min(hi, u_hi), color="C3", alpha=0.15,
-                         label=None if np.isfinite(hi) else "95 % interval: upper bound open")
-            ax_z.axvline(d.prediction.speed_mps, color="C3",
-                         label=f"predicted U_f {d.prediction.speed_mps:.2f} m/s ({d.prediction.method})")
-    ax_z.axvline(uf, color="k", lw=0.8, label=f"model linear U_f {uf:.2f} m/s")
-    ax_z.axhline(0, color="k", lw=0.5)
-    ax_z.set_ylim(-0.005, 0.03)
-    ax_z.set_ylabel("damping ratio")
-    ax_z.legend(fontsize=7)
-    ax_f.set_ylabel("frequency (Hz)")
-    ax_f.set_xlabel("airspeed (m/s)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 def format_flutter_test(out: dict[str, Any]) -> str:

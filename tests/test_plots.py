@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+import pytest
 
 from panel_rig.analysis import plots
+from panel_rig.analysis.flutter_test import FlutterTestResult, FlutterTestSettings, TestPoint, decide
+from panel_rig.analysis.identification import ModalEstimate
 from panel_rig.analysis.lco import LCOResult
+from panel_rig.analysis.vg import model_flutter_speed, vg_diagram
+from panel_rig.config import PanelConfig
+from panel_rig.model.stepper import Stepper
 
 
 def test_lco_sweep_marks_the_diverged_airspeeds(tmp_path, monkeypatch):
@@ -55,3 +62,110 @@ def test_report_rows_have_the_header_s_cells():
     header, row = (ln for ln in text.splitlines() if ln.startswith("| id") or ln.startswith("| C4"))
     cells = lambda line: len(re.split(r"(?<!\\)\|", line)) - 2  # noqa: E731 - unescaped pipes
     assert cells(row) == cells(header) == 7
+
+
+@pytest.fixture(scope="module")
+def panel() -> tuple[Any, float, int]:
+    """The paper panel's model, its linear U_f and its flutter mode."""
+    model = Stepper(PanelConfig()).model
+    uf, mode = model_flutter_speed(model)
+    return model, uf, mode
+
+
+def flutter_result(panel: tuple[Any, float, int], fractions: list[float], damping_se: list[float],
+                   shifts: list[float] | None = None, first: bool = True) -> FlutterTestResult:
+    """A flutter test whose points identified the model's modes at ``fractions`` x U_f (the flutter mode's damping
+    shifted by ``shifts``, its standard error ``damping_se``), with the procedure's decisions."""
+    model, uf, mode = panel
+    u = np.array(fractions) * uf
+    vg = vg_diagram(model, u)
+    shifts = shifts or [0.0] * u.size
+
+    def estimate(k: int, m: int, se: float, shift: float = 0.0) -> ModalEstimate:
+        return ModalEstimate(vg.frequency_hz[k, m], vg.damping_ratio[k, m] + shift, 0.01, se, 9, "ssi")
+
+    points = [TestPoint(float(x), estimate(k, 0, 0.01) if first else None,
+                        estimate(k, mode - 1, damping_se[k], shifts[k]), "ssi-cov") for k, x in enumerate(u)]
+    settings = FlutterTestSettings(start_mps=float(u[0]), step_mps=1.0, n_boot=100)
+    return FlutterTestResult(points, [decide(points[:k], settings) for k in range(1, len(points) + 1)])
+
+
+def draw_flutter_test(tmp_path, monkeypatch, panel: tuple[Any, float, int], res: FlutterTestResult) -> Any:
+    """`plot_flutter_test` of ``res``; returns its figure, drawn (display coordinates valid)."""
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path))[1])
+    model, uf, mode = panel
+    assert plots.plot_flutter_test(res, model, mode, uf, tmp_path / "vg.png").stat().st_size > 0
+    return figures[0]
+
+
+def bar_extents(ax: Any, res: FlutterTestResult) -> list[Any]:
+    """Each identified point's 95 % bar as drawn: its display-coordinate box, cut to the axes."""
+    from matplotlib.transforms import Bbox
+
+    boxes = []
+    for p in res.points:
+        lo, hi = ax.transData.transform([(p.airspeed_mps, y) for y in p.flutter.damping_ci()])
+        box = Bbox.intersection(Bbox([lo - [4, 0], hi + [4, 0]]), ax.get_window_extent())
+        boxes += [box] if box is not None else []
+    return boxes
+
+
+def test_flutter_test_damping_panel_shows_every_bar(tmp_path, monkeypatch, panel):
+    """`flutter-test --plot` (a 20 s dwell): the damping panel's fixed limits (-0.005, 0.03) cut the first
+    point's bar [-0.0064, 0.0217]. Every point and its whole bar are inside the limits now."""
+    res = flutter_result(panel, [0.5, 0.6, 0.7, 0.73, 0.83], [0.0062, 0.0032, 0.0028, 0.003, 0.0014],
+                         [0.0005, 0.002, 0.001, 0.004, -0.001])
+    lo, hi = draw_flutter_test(tmp_path, monkeypatch, panel, res).axes[0].get_ylim()
+    for p in res.points:
+        z_lo, z_hi = p.flutter.damping_ci()
+        assert lo < z_lo and z_hi < hi, (p.airspeed_mps, (z_lo, z_hi), (lo, hi))
+
+
+def test_flutter_test_cuts_a_huge_bar_and_marks_it(tmp_path, monkeypatch, panel):
+    """A bar of +-0.45 would flatten the other points to a line: it is cut at a few times their span, the cut
+    marked by a triangle at the edge and the bar's end printed."""
+    res = flutter_result(panel, [0.5, 0.6, 0.7, 0.8], [0.0005, 0.2, 0.0005, 0.0005])
+    ax = draw_flutter_test(tmp_path, monkeypatch, panel, res).axes[0]
+    lo, hi = ax.get_ylim()
+    assert -0.05 < lo and hi < 0.05
+    marks = [ln for ln in ax.lines if ln.get_marker() in ("^", "v")]
+    assert sorted(ln.get_marker() for ln in marks) == ["^", "v"]
+    assert all(ln.get_xdata()[0] == res.points[1].airspeed_mps for ln in marks)
+    ends = [f"{x:.3g}" for x in res.points[1].flutter.damping_ci()]
+    assert sorted(t.get_text() for t in ax.texts) == sorted(ends)
+
+
+def test_flutter_test_legend_covers_no_bar(tmp_path, monkeypatch, panel):
+    """The legend sat in the damping panel's upper left, over the first point's bar (a high damping at the
+    lowest airspeed). Its box overlaps no bar now."""
+    res = flutter_result(panel, [0.5, 0.6, 0.7, 0.8], [0.0005, 0.008, 0.0005, 0.0005], [0.018, 0.0, 0.0, 0.0])
+    fig = draw_flutter_test(tmp_path, monkeypatch, panel, res)
+    legend = fig.legends[0] if fig.legends else fig.axes[0].get_legend()
+    box = legend.get_window_extent()
+    assert not any(box.overlaps(b) for b in bar_extents(fig.axes[0], res))
+
+
+def test_flutter_test_draws_both_predictions_and_the_zw_margin(tmp_path, monkeypatch, panel):
+    """Only the prediction the decision used had a line, labelled with the method's code name, and the ZW flutter
+    margins behind it were not shown. Both predicted U_f are lines now (the ZW one named so) and the margins per
+    point are a panel of their own; without a ZW prediction (mode 1 not identified) there is no such panel."""
+    res = flutter_result(panel, [0.5, 0.6, 0.7, 0.8, 0.85], [0.0005] * 5)
+    fig = draw_flutter_test(tmp_path, monkeypatch, panel, res)
+    d = res.final
+    assert np.isfinite(d.trend.speed_mps) and np.isfinite(d.zw.speed_mps)
+    for pred, name in ((d.trend, "damping trend"), (d.zw, "ZW")):
+        lines = [ln for ln in fig.axes[0].lines if list(ln.get_xdata()) == [pred.speed_mps] * 2]  # vertical
+        assert len(lines) == 1 and name in lines[0].get_label(), name
+    from panel_rig.analysis.flutter_test import margin_points
+
+    margin = next(ax for ax in fig.axes if "ZW" in ax.get_ylabel())
+    u, f = margin_points(res.points)
+    points = next(ln for ln in margin.lines if ln.get_marker() == "s")
+    assert list(points.get_xdata()) == list(u) and np.allclose(points.get_ydata(), f / (2 * np.pi) ** 4)
+    fit = next(ln for ln in margin.lines if ln.get_linestyle() == "--")  # the ZW fit, extrapolated to F = 0
+    assert fit.get_xdata()[-1] == pytest.approx(d.zw.speed_mps) and abs(fit.get_ydata()[-1]) < 1e-6 * max(f)
+    no_zw = flutter_result(panel, [0.5, 0.6, 0.7], [0.001] * 3, first=False)
+    fig = draw_flutter_test(tmp_path, monkeypatch, panel, no_zw)
+    assert no_zw.final.zw is None and not any("ZW" in ax.get_ylabel() for ax in fig.axes)

@@ -84,6 +84,13 @@ def zimmerman_weissenburger(s1: np.ndarray | complex, s2: np.ndarray | complex) 
             - ((b2 - b1) / (b2 + b1) * dw + 2 * bm**2) ** 2)
 
 
+def flutter_margins(mode_a: Sequence[ModalEstimate], mode_b: Sequence[ModalEstimate]) -> np.ndarray:
+    """ZW flutter margin F ((rad/s)^4) of each test point from its identified modes a and b."""
+    pa = pole_from_modal([e.frequency_hz for e in mode_a], [e.damping_ratio for e in mode_a])
+    pb = pole_from_modal([e.frequency_hz for e in mode_b], [e.damping_ratio for e in mode_b])
+    return zimmerman_weissenburger(pa, pb)
+
+
 def extrapolated_root(x: np.ndarray, y: np.ndarray, degree: int) -> float:
     """Lowest real root above max(x) of the least-squares polynomial of y(x); inf if there is none."""
     x, y = np.asarray(x, float), np.asarray(y, float)
@@ -149,9 +156,7 @@ def predict_by_flutter_margin(airspeeds_mps: Sequence[float], mode_a: Sequence[M
     """Zimmerman–Weissenburger flutter-margin extrapolation of two modes, parametric-bootstrap interval."""
     u = np.asarray(airspeeds_mps, float)
     rng = rng if rng is not None else np.random.default_rng(0)
-    pa = pole_from_modal([e.frequency_hz for e in mode_a], [e.damping_ratio for e in mode_a])
-    pb = pole_from_modal([e.frequency_hz for e in mode_b], [e.damping_ratio for e in mode_b])
-    point = flutter_margin_speed(u, pa, pb, degree)
+    point = float(np.sqrt(extrapolated_root(u**2, flutter_margins(mode_a, mode_b), degree)))
     fa, za = _draw(mode_a, rng, n_boot)
     fb, zb = _draw(mode_b, rng, n_boot)
     samples = np.array([flutter_margin_speed(u, pole_from_modal(fa[k], za[k]), pole_from_modal(fb[k], zb[k]), degree)

@@ -30,6 +30,7 @@ import numpy as np
 
 from panel_rig.analysis.flutter_margin import (
     BoundaryPrediction,
+    flutter_margins,
     predict_by_damping_trend,
     predict_by_flutter_margin,
 )
@@ -142,7 +143,7 @@ def _predict(fl: list[TestPoint], n_boot: int, seed: int
     if len(fl) >= 3:
         trend = predict_by_damping_trend([p.airspeed_mps for p in fl], [p.flutter for p in fl], n_boot=n_boot,
                                          rng=np.random.default_rng(seed))
-    both = [p for p in fl if p.first is not None]
+    both = _both_modes(fl)
     if len(both) >= 2:
         zw = predict_by_flutter_margin([p.airspeed_mps for p in both], [p.first for p in both],
                                        [p.flutter for p in both], n_boot=n_boot, rng=np.random.default_rng(seed))
@@ -175,6 +176,21 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
     return Decision(float(nxt), reason, trend, zw, pred)
 
 
+def _both_modes(points: Sequence[TestPoint]) -> list[TestPoint]:
+    """The points with both modes identified: those the ZW predictor fits."""
+    return [p for p in points if p.first is not None and p.flutter is not None]
+
+
+def _extrapolation(u: np.ndarray, y: np.ndarray, degree: int, speed_mps: float, n: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares polynomial of y in U^2 from the first point to ``speed_mps`` (10 % past the last point
+    when it is not finite; never past 1.5 x the last point)."""
+    c = np.polyfit(u**2, y, degree)
+    end = speed_mps if np.isfinite(speed_mps) else 1.1 * u.max()
+    uu = np.linspace(u.min(), max(u.max(), min(end, 1.5 * u.max())), n)
+    return uu, np.polyval(c, uu**2)
+
+
 def trend_curve(points: Sequence[TestPoint], decision: Decision | None, n: int = 50
                 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The damping-trend extrapolation as (airspeeds, damping ratios), from the first point to the predicted U_f
@@ -184,10 +200,24 @@ def trend_curve(points: Sequence[TestPoint], decision: Decision | None, n: int =
         return None
     u = np.array([p.airspeed_mps for p in fl])
     z = np.array([p.flutter.damping_ratio for p in fl])
-    c = np.polyfit(u**2, z, 2)
-    end = decision.trend.speed_mps if np.isfinite(decision.trend.speed_mps) else 1.1 * u.max()
-    uu = np.linspace(u.min(), max(u.max(), min(end, 1.5 * u.max())), n)
-    return uu, np.polyval(c, uu**2)
+    return _extrapolation(u, z, decision.trend.degree, decision.trend.speed_mps, n)
+
+
+def margin_points(points: Sequence[TestPoint]) -> tuple[np.ndarray, np.ndarray]:
+    """(airspeeds, ZW flutter margins F in (rad/s)^4) of the points with both modes identified."""
+    both = _both_modes(points)
+    return (np.array([p.airspeed_mps for p in both]),
+            flutter_margins([p.first for p in both], [p.flutter for p in both]))
+
+
+def margin_curve(points: Sequence[TestPoint], decision: Decision | None, n: int = 50
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ZW flutter-margin extrapolation as (airspeeds, F), from the first point to its predicted U_f (or 10 %
+    past the last point if it does not cross); None when the decision holds no ZW prediction."""
+    if decision is None or decision.zw is None:
+        return None
+    u, f = margin_points(points)
+    return _extrapolation(u, f, decision.zw.degree, decision.zw.speed_mps, n)
 
 
 def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[float, float]]]:

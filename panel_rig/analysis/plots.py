@@ -15,7 +15,8 @@ import numpy as np  # noqa: E402
 def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:  # a figure laid out as it was made (constrained) keeps its layout
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -195,4 +196,149 @@ def plot_control_damping(speeds: np.ndarray, open_roots: list[np.ndarray], close
     ax1.legend(fontsize=8, loc="lower left")
     if title:
         fig.suptitle(title, fontsize=9)
+    return _save(fig, path)
+
+
+#: the flutter-test predictors: their name on the figure and colour (the damping trend's matches its curve)
+_PREDICTORS = {"damping-trend": ("damping trend", "C1"), "flutter-margin": ("ZW flutter margin", "C2")}
+#: a 95 % bar is drawn in full unless it reaches beyond the other data by more than this many times their span
+BAR_CAP_SPANS = 3.0
+
+
+def damping_limits(values: np.ndarray, bars: np.ndarray, others: Sequence[np.ndarray] = (),
+                   cap: float = BAR_CAP_SPANS, pad: float = 0.08) -> tuple[float, float]:
+    """y-limits that show every value and every bar end, except that a bar end more than ``cap`` x the values'
+    span beyond them is cut there (a huge interval would flatten the rest); each of ``others`` (curves) is shown
+    whole when it lies within that reach, else left out; ``pad`` of the range either side."""
+    lo, hi = float(np.nanmin(values)), float(np.nanmax(values))
+    span = max(hi - lo, 1e-3)
+    reach = (lo - cap * span, hi + cap * span)
+    ends = np.asarray(bars, float).ravel()
+    ends = np.clip(ends[np.isfinite(ends)], *reach)
+    for y in others:
+        if np.size(y) and reach[0] <= np.min(y) and np.max(y) <= reach[1]:
+            ends = np.concatenate([ends, [np.min(y), np.max(y)]])
+    if ends.size:
+        lo, hi = min(lo, ends.min()), max(hi, ends.max())
+    return lo - pad * (hi - lo), hi + pad * (hi - lo)
+
+
+def _mark_clipped(ax, u: np.ndarray, ci: np.ndarray, limits: tuple[float, float]) -> None:
+    """A triangle at the panel's edge, with the bar's end value, for every 95 % bar the limits cut."""
+    label = "95 % bar cut at the edge (its end printed)"
+    for x, (lo, hi) in zip(u, ci):
+        for end, edge, marker, va in ((hi, limits[1], "^", "top"), (lo, limits[0], "v", "bottom")):
+            if (end > edge) if marker == "^" else (end < edge):
+                ax.plot(x, edge, marker, color="C0", clip_on=False, label=label)
+                ax.annotate(f"{end:.3g}", (x, edge), xytext=(5, 0), textcoords="offset points", fontsize=7,
+                            color="C0", va=va)
+                label = None
+
+
+def _prediction_lines(axes, decision: Any, u_hi: float) -> None:
+    """Both predictors of the final decision: a vertical line at each predicted U_f across all panels (solid for
+    the one the decision used, its 95 % interval shaded), or a legend note when one does not cross zero."""
+    for pred in (decision.trend, decision.zw):
+        if pred is None:
+            continue
+        name, color = _PREDICTORS.get(pred.method, (pred.method, "C3"))
+        used = pred is decision.prediction
+        lo, hi = pred.ci_mps
+        ci = "" if not np.isfinite(lo) else f" (95 % {lo:.2f} .. {f'{hi:.2f}' if np.isfinite(hi) else 'open'})"
+        if not np.isfinite(pred.speed_mps):
+            axes[0].plot([], [], " ", label=f"{name}: no crossing{ci}")
+            continue
+        label = f"{name} U_f {pred.speed_mps:.2f} m/s{ci}{', used' if used else ''}"
+        for ax in axes:
+            ax.axvline(pred.speed_mps, color=color, ls="-" if used else "--", lw=1.2, label=label)
+            if used and np.isfinite(lo):
+                ax.axvspan(lo, min(hi, u_hi), color=color, alpha=0.12, lw=0)
+            label = None
+
+
+def _margin_panel(ax, points: Sequence[Any], decision: Any) -> None:
+    """The ZW flutter margin F of each point (both modes identified) and its fit in q extrapolated to zero."""
+    from panel_rig.analysis.flutter_test import margin_curve, margin_points
+
+    hz4 = (2 * np.pi) ** 4  # F in Hz^4: (rad/s)^4 / (2 pi)^4
+    u, f = margin_points(points)
+    ax.plot(u, f / hz4, "s", color="C2", label="ZW flutter margin F (modes 1 and flutter)")
+    curve = margin_curve(points, decision)
+    if curve is not None:
+        ax.plot(curve[0], curve[1] / hz4, "--", color="C2", label=f"ZW fit (degree {decision.zw.degree} in q)")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_ylabel("ZW margin F, Hz^4")
+
+
+def _off_scale_notes(ax, grid: np.ndarray, damping: np.ndarray, mode: int, shown: np.ndarray) -> None:
+    """A legend note for each model mode whose damping in the shown airspeeds is entirely off the panel."""
+    lo, hi = ax.get_ylim()
+    for k in range(damping.shape[1]):
+        z = damping[shown, k]
+        if k != mode - 1 and z.size and (z.min() > hi or z.max() < lo):
+            ax.plot([], [], " ", label=f"model mode {k + 1}: zeta {z.min():.2f}..{z.max():.2f}, off the panel")
+
+
+def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Path) -> Path:
+    """The flutter test's V-g: the model's damping and frequency of every mode (solid: the flutter mode), the
+    identified points with their 95 % bars, the damping-trend extrapolation, both predicted U_f (damping trend
+    and Zimmerman–Weissenburger), and when the result holds a ZW prediction a panel of the ZW flutter margin per
+    point with its extrapolation. Damping limits show every point and bar (a huge bar is cut, marked); the
+    legend is below the panels, off the data. ``res``: a FlutterTestResult (its points and final decision)."""
+    from panel_rig.analysis.flutter_test import trend_curve
+    from panel_rig.analysis.vg import vg_diagram
+
+    d = res.final
+    pts = [p for p in res.points if p.flutter is not None]
+    tested = [p.airspeed_mps for p in res.points]
+    preds = [] if d is None else [p.speed_mps for p in (d.trend, d.zw) if p is not None and np.isfinite(p.speed_mps)]
+    u_hi = max([uf * 1.1] + tested + preds)  # the model drawn to every predicted U_f
+    grid = np.linspace(min([0.3 * uf] + tested), u_hi, 60)
+    vg = vg_diagram(model, grid)
+    zw = d is not None and d.zw is not None
+    fig, axes = plt.subplots(3 if zw else 2, 1, figsize=(7, 10 if zw else 8), sharex=True, layout="constrained",
+                             height_ratios=[3, 2, 2] if zw else [3, 2])
+    ax_z, ax_f = axes[0], axes[-1]
+    for k in range(vg.poles.shape[1]):
+        ls, label = ("-", "model V-g, flutter mode") if k == mode - 1 else (":", "model V-g, other modes")
+        ax_z.plot(grid, vg.damping_ratio[:, k], ls, color="0.5", lw=1,
+                  label=None if label in ax_z.get_legend_handles_labels()[1] else label)
+        ax_f.plot(grid, vg.frequency_hz[:, k], ls, color="0.5", lw=1)
+    # the damping limits: the points, the model's flutter mode where tested (all of it below U_f with no point),
+    # the trend and zero, and the bars (cut when huge); the other modes where tested when they are near
+    shown = (grid >= min(tested) - 1e-9) & (grid <= max(tested) + 1e-9) if tested else grid <= uf
+    values = [0.0, *vg.damping_ratio[shown, mode - 1]]
+    u = np.array([p.airspeed_mps for p in pts])
+    zci = np.array([p.flutter.damping_ci() for p in pts]).reshape(-1, 2)
+    if pts:
+        z = np.array([p.flutter.damping_ratio for p in pts])
+        ax_z.errorbar(u, z, yerr=[z - zci[:, 0], zci[:, 1] - z], fmt="o", color="C0", capsize=3,
+                      label="identified flutter mode (95 %)")
+        ax_f.plot(u, [p.flutter.frequency_hz for p in pts], "o", color="C0")
+        values += list(z)
+    first = [p for p in res.points if p.first is not None]
+    if first:
+        ax_f.plot([p.airspeed_mps for p in first], [p.first.frequency_hz for p in first], "o", mfc="none",
+                  color="C0", label="identified mode 1")
+    curve = trend_curve(res.points, d)
+    if curve is not None:
+        ax_z.plot(*curve, "--", color="C1", label="damping trend (quadratic in q)")
+        values += list(curve[1])
+    if zw:
+        _margin_panel(axes[1], res.points, d)
+    if d is not None:
+        _prediction_lines(axes, d, u_hi)
+    for ax in axes:
+        ax.axvline(uf, color="k", lw=0.8, ls="-.", label=f"model linear U_f {uf:.2f} m/s" if ax is ax_z else None)
+        ax.grid(alpha=0.3)
+    ax_z.axhline(0, color="k", lw=0.5)
+    others = [vg.damping_ratio[shown, k] for k in range(vg.poles.shape[1]) if k != mode - 1]
+    limits = damping_limits(np.array(values), zci, others)
+    ax_z.set_ylim(*limits)
+    _mark_clipped(ax_z, u, zci, limits)
+    _off_scale_notes(ax_z, grid, vg.damping_ratio, mode, shown)
+    ax_z.set_ylabel("damping ratio")
+    ax_f.set_ylabel("frequency (Hz)")
+    ax_f.set_xlabel("airspeed (m/s)")
+    fig.legend(loc="outside lower center", ncols=2, fontsize=7)
     return _save(fig, path)

@@ -116,7 +116,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
                monitor_times_s=[float(r["sim_time_s"]) for r in results],
                identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
     if plot is not None:
-        from panel_rig.flutter_cli import plot_flutter_test
+        from panel_rig.analysis.plots import plot_flutter_test
 
         out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
     return out
