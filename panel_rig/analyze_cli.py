@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
@@ -18,6 +18,7 @@ from panel_rig.model.options import VARIANTS
 from panel_rig.paths import make_output_dir, rrd_path_problem
 
 ANALYZE_PROG = "panel-rig analyze"
+FLUTTER_TEST_PLOT = "flutter_test_vg.png"  # with --plots, when the replay identified a test point
 
 
 def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None) -> dict[str, Any]:
@@ -36,24 +37,40 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
         "refused_commands": rec.refused_commands, **core,
     }
-    result["flutter_test"], ft_points = _replay_flutter_test(rec)
+    replay = _replay(rec)
+    result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
                        if plots_dir is not None else [])
+    if plots_dir is not None and replay is not None and replay.points:
+        result["plots"].append(_plot_replay(replay, Path(plots_dir) / FLUTTER_TEST_PLOT))
     result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
                        else None)
     return result
 
 
+class FlutterTestReplay(NamedTuple):
+    """The flutter-test replay of a recording: its JSON part, the identified points (TestPoint), the final
+    decision on them, and the model of the run's parameters with its linear U_f (m/s) and flutter mode."""
+
+    payload: dict[str, Any]
+    points: list[Any]
+    decision: Any
+    model: Any
+    uf_mps: float
+    mode: int
+
+
 def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
-    """The flutter-test replay's JSON part (see :func:`_replay_flutter_test`)."""
-    return _replay_flutter_test(rec)[0]
+    """The flutter-test replay's JSON part (see :func:`_replay`)."""
+    replay = _replay(rec)
+    return replay.payload if replay else None
 
 
-def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
+def _replay(rec: Any) -> FlutterTestReplay | None:
     """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
     per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
     the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
-    bag has no airspeed commands or the model does not flutter. With it the identified points (TestPoint)."""
+    bag has no airspeed commands or the model does not flutter."""
     from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
     from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.config import SCHEMA, config_from_flat
@@ -61,7 +78,7 @@ def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
 
     cmds = rec.commands.get("airspeed_cmd", [])
     if not cmds:
-        return None, []
+        return None
     try:
         cfg = config_from_flat({k: v for k, v in rec.parameters.items() if k in SCHEMA})
     except ConfigError:
@@ -70,7 +87,7 @@ def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
     model = Stepper(cfg, variant=variant if variant in VARIANTS else "full").model
     found = model_flutter_speed(model)
     if found is None:
-        return None, []
+        return None
     uf, mode = found
     force = rec.force_npm if np.any(rec.force_npm) else None
     # a node run with the flutter monitor recorded its test-point window: replay exactly that window
@@ -84,6 +101,7 @@ def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
                            "prediction_method": None}
+    d = None
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
         if d.prediction is not None:
@@ -92,12 +110,16 @@ def _replay_flutter_test(rec: Any) -> tuple[dict[str, Any] | None, list[Any]]:
                        predicted_flutter_speed_ci_mps=pd["predicted_flutter_speed_ci_mps"],
                        prediction_method=d.prediction.method,
                        margin=d.prediction.margin(points[-1].airspeed_mps))
-    return out, points
+    return FlutterTestReplay(out, points, d, model, uf, mode)
 
 
-def _bound(x: float | None) -> str:
-    """An interval bound for a table: ``open`` when there is none (the bootstrap draws did not all cross)."""
-    return "open" if x is None else f"{x:.2f}"
+def _plot_replay(replay: FlutterTestReplay, path: Path) -> str:
+    """The replay's V-g figure (the one `panel-rig flutter-test --plot` draws)."""
+    from panel_rig.analysis.flutter_test import FlutterTestResult
+    from panel_rig.analysis.plots import plot_flutter_test
+
+    res = FlutterTestResult(points=list(replay.points), decisions=[replay.decision])
+    return str(plot_flutter_test(res, replay.model, replay.mode, replay.uf_mps, path))
 
 
 def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = ()) -> str:
@@ -144,7 +166,7 @@ def _replay_times(rec: Any, result: dict[str, Any], points: list[Any]) -> list[f
 
 
 def _replay_decisions(points: list[Any], parameters: dict[str, Any]) -> list[Any]:
-    """The decision the flutter test would take after each replayed point (as :func:`_replay_flutter_test`)."""
+    """The decision the flutter test would take after each replayed point (as :func:`_replay`)."""
     from panel_rig.analysis.flutter_test import FlutterTestSettings, decide
 
     if not points:
@@ -173,6 +195,8 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
 
 def format_table(result: dict[str, Any]) -> str:
     """Human-readable plateau table and onset lines of an `analyze_bag` result."""
+    from panel_rig.analysis.flutter_test import prediction_text
+
     head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
             f"{'rate_1/s':>8} status")
     lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
@@ -213,10 +237,9 @@ def format_table(result: dict[str, Any]) -> str:
             lines.append(f"   U {p['airspeed_mps']:7.3f} m/s  f {num(p['frequency_hz'])} Hz  zeta "
                          + ("-" if p["damping_ratio"] is None else
                             f"{p['damping_ratio']:.4f} [{ci[0]:.4f}, {ci[1]:.4f}]") + f"  {p['method']}")
-        ci = ft["predicted_flutter_speed_ci_mps"]
-        lines.append(f"   predicted U_f {num(ft['predicted_flutter_speed_mps'])} m/s"
-                     + ("" if ci is None else f" (95 % {_bound(ci[0])} .. {_bound(ci[1])})")
-                     + f" [{ft['prediction_method']}]; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
+        pred = prediction_text(ft["predicted_flutter_speed_mps"], ft["predicted_flutter_speed_ci_mps"],
+                               ft["prediction_method"], digits=2)
+        lines.append(f"   {pred}; model linear U_f {ft['model_flutter_speed_mps']:.2f} m/s")
     for path in result.get("plots") or []:
         lines.append(f"plot: {path}")
     if result.get("rerun"):

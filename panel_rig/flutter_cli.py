@@ -214,11 +214,10 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
 
 def format_flutter_test(out: dict[str, Any]) -> str:
+    from panel_rig.analysis.flutter_test import prediction_text
+
     def num(x: Any, fmt: str) -> str:
         return "-" if x is None else format(x, fmt)
-
-    def bound(x: float | None) -> str:  # an interval bound: open when the bootstrap draws did not all cross
-        return "open" if x is None else f"{x:.3f}"
 
     lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method"]
     for k, p in enumerate(out["test_points"], 1):
@@ -226,14 +225,13 @@ def format_flutter_test(out: dict[str, Any]) -> str:
         ci_s = "-" if ci is None else f"[{ci[0]:.4f}, {ci[1]:.4f}]"
         lines.append(f"{k:>2} {p['airspeed_mps']:>7.3f} {num(p['frequency_hz'], '7.3f')} "
                      f"{num(p['damping_ratio'], '8.4f')} {ci_s:>19} {p['method']}")
-    ci = out["predicted_flutter_speed_ci_mps"]
-    lines.append(f"predicted U_f: {num(out['predicted_flutter_speed_mps'], '.3f')} m/s"
-                 + ("" if ci is None else f" (95 % {bound(ci[0])} .. {bound(ci[1])})")
-                 + f" [{out['prediction_method']}]; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
+    pred = prediction_text(out["predicted_flutter_speed_mps"], out["predicted_flutter_speed_ci_mps"],
+                           out["prediction_method"])
+    lines.append(f"{pred}; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
     lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; fluttered: {out['fluttered']}; "
                  f"stop: {out['stop_reason']}")
     where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {out['node_rtf']:.1f})" if out.get("live")
              else "in-process rig")
-    lines.append(f"bag: {out['bag']}; plot: {out.get('plot')}; {out['simulated_s']:.0f} s simulated in "
+    lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {out['simulated_s']:.0f} s simulated in "
                  f"{out['wall_s']:.1f} s wall on the {where}")
     return "\n".join(lines)

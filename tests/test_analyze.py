@@ -550,3 +550,31 @@ def test_a_run_without_an_unstable_plateau_reports_no_onset() -> None:
               "plateaus": [plateau], "onset": estimate_onset([plateau])}
     last = format_table(result).splitlines()[-1]
     assert last.startswith("flutter onset: no plateau was unstable (stable up to 6.00 m/s)"), last
+
+
+def test_a_replay_without_a_prediction_says_why_not_none() -> None:
+    """One identified point gives no prediction: the table printed "predicted U_f - m/s [None]"."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+    from panel_rig.analysis.flutter_test import NO_PREDICTION
+    from panel_rig.analyze_cli import format_table
+    from panel_rig.flutter_cli import format_flutter_test
+
+    plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 30.0, "airspeed_mps": 10.2, "rms_tip_w_over_L": 2e-4,
+               "peak_tip_w_over_L": 5e-4, "dominant_frequency_hz": 22.8, "growth_rate_per_s": -0.1,
+               "status": "decaying"}
+    point = {"airspeed_mps": 10.2, "frequency_hz": 22.84, "damping_ratio": 2e-4, "damping_ci": [-1e-4, 5e-4],
+             "method": "ssi-cov"}
+    ft = {"test_points": [point], "model_flutter_speed_mps": 10.48, "predicted_flutter_speed_mps": None,
+          "predicted_flutter_speed_ci_mps": None, "prediction_method": None}
+    result = {"bag": "b", "duration_s": 30.0, "samples": 15000, "panel_length_m": 0.27,
+              "panel_length_source": "bag", "plateaus": [plateau], "onset": estimate_onset([plateau]),
+              "flutter_test": ft}
+    text = format_table(result)
+    assert "None" not in text and f"   {NO_PREDICTION}; model linear U_f 10.48 m/s" in text.splitlines()
+    run = {**ft, "max_airspeed_mps": 10.2, "fluttered": False, "stop_reason": "max points", "bag": None,
+           "simulated_s": 30.0, "wall_s": 3.0}
+    text = format_flutter_test(run)
+    assert "None" not in text and "bag: -; plot: -;" in text and f"{NO_PREDICTION}; model linear U_f 10.480 m/s" in text
+    with_one = format_flutter_test({**run, "predicted_flutter_speed_mps": 10.4, "prediction_method": "damping-trend",
+                                    "predicted_flutter_speed_ci_mps": [10.1, None]})
+    assert "predicted U_f 10.400 m/s (95 % 10.100 .. open) [damping-trend]; model linear U_f 10.480 m/s" in with_one

@@ -141,7 +141,11 @@ def test_cli_flutter_test_json_with_a_set_and_its_replay(tmp_path, capsys):
     # recorded stamps), and a prediction
     from panel_rig.analyze_cli import analyze_bag
 
-    ft = analyze_bag(out["bag"])["flutter_test"]
+    result = analyze_bag(out["bag"], plots_dir=tmp_path / "plots")
+    ft = result["flutter_test"]
+    # with --plots the replay's V-g figure too, as `flutter-test --plot` draws it
+    assert str(tmp_path / "plots" / "flutter_test_vg.png") in result["plots"]
+    assert (tmp_path / "plots" / "flutter_test_vg.png").stat().st_size > 0
     assert [p["airspeed_mps"] for p in ft["test_points"]] == pytest.approx(
         [p["airspeed_mps"] for p in out["test_points"]])
     for live, again in zip(out["test_points"], ft["test_points"]):

@@ -220,6 +220,24 @@ def margin_curve(points: Sequence[TestPoint], decision: Decision | None, n: int 
     return _extrapolation(u, f, decision.zw.degree, decision.zw.speed_mps, n)
 
 
+#: why a payload has no predicted U_f (the predictors' minimum points, see :func:`_predict`)
+NO_PREDICTION = "no predicted U_f from these points (the ZW margin needs 2 with both modes, the trend 3, and a crossing)"
+
+
+def prediction_text(speed_mps: float | None, ci_mps: Sequence[float | None] | None, method: str | None,
+                    digits: int = 3) -> str:
+    """A payload's predicted U_f as text: the speed (m/s), its 95 % interval (an open bound as ``open``) and the
+    predictor; NO_PREDICTION when there is none."""
+    if speed_mps is None:
+        return NO_PREDICTION
+
+    def bound(x: float | None) -> str:
+        return "open" if x is None else f"{x:.{digits}f}"
+
+    interval = "" if ci_mps is None else f" (95 % {bound(ci_mps[0])} .. {bound(ci_mps[1])})"
+    return f"predicted U_f {speed_mps:.{digits}f} m/s{interval} [{method}]"
+
+
 def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[float, float]]]:
     """Per airspeed: the identification bands around the model's first mode and flutter mode (pre-test V-g)."""
     from panel_rig.analysis.vg import vg_diagram

@@ -304,9 +304,10 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
         ax_z.plot(grid, vg.damping_ratio[:, k], ls, color="0.5", lw=1,
                   label=None if label in ax_z.get_legend_handles_labels()[1] else label)
         ax_f.plot(grid, vg.frequency_hz[:, k], ls, color="0.5", lw=1)
-    # the damping limits: the points, the model's flutter mode where tested (all of it below U_f with no point),
-    # the trend and zero, and the bars (cut when huge); the other modes where tested when they are near
-    shown = (grid >= min(tested) - 1e-9) & (grid <= max(tested) + 1e-9) if tested else grid <= uf
+    # the damping limits: the points, the model's flutter mode from the first point (or half U_f, where the default
+    # plan starts) to U_f (a lone point near U_f was drawn on the scale of its bar alone), the trend and zero, and
+    # the bars (cut when huge); the other modes there when they are near
+    shown = (grid >= min(tested + [0.5 * uf]) - 1e-9) & (grid <= max(tested + [uf]) + 1e-9)
     values = [0.0, *vg.damping_ratio[shown, mode - 1]]
     u = np.array([p.airspeed_mps for p in pts])
     zci = np.array([p.flutter.damping_ci() for p in pts]).reshape(-1, 2)
