@@ -169,3 +169,19 @@ def test_flutter_test_draws_both_predictions_and_the_zw_margin(tmp_path, monkeyp
     no_zw = flutter_result(panel, [0.5, 0.6, 0.7], [0.001] * 3, first=False)
     fig = draw_flutter_test(tmp_path, monkeypatch, panel, no_zw)
     assert no_zw.final.zw is None and not any("ZW" in ax.get_ylabel() for ax in fig.axes)
+
+
+def test_lco_vs_airspeed_of_a_subcritical_run_says_why_its_frequency_panel_is_empty(tmp_path, monkeypatch):
+    """A flutter-test bag has no LCO: its `analyze --plots` frequency panel was an empty 0..1 frame. It shares the
+    amplitude panel's airspeed axis now and says why it is empty."""
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path))[1])
+    quiet = [{"airspeed_mps": u, "rms_tip_w_over_L": 1e-4 * u, "dominant_frequency_hz": 23.0, "status": "decaying"}
+             for u in (5.2, 6.3, 7.3)]
+    plots.plot_lco_vs_airspeed(tmp_path / "a.png", quiet)
+    ax1, ax2 = figures[0].axes
+    assert ax2.get_xlim() == ax1.get_xlim() and not ax2.lines
+    assert any("no LCO frequency" in t.get_text() for t in ax2.texts)
+    plots.plot_lco_vs_airspeed(tmp_path / "b.png", [*quiet, {**quiet[0], "airspeed_mps": 11.0, "status": "lco"}])
+    assert not figures[1].axes[1].texts and figures[1].axes[1].lines

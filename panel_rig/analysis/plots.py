@@ -148,7 +148,10 @@ def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray
 
 def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict | None = None) -> Path:
     """Fig. 8 from a recording: RMS tip w/L and dominant frequency per airspeed plateau."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.2))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
+    if not any(p["status"] in ("lco", "growing") for p in plateaus):  # a subcritical run (a flutter test)
+        ax2.text(0.5, 0.5, "no plateau at an LCO or growing:\nno LCO frequency", transform=ax2.transAxes,
+                 ha="center", va="center", color="0.4")
     for status, (color, marker) in _STATUS_STYLE.items():
         sel = [p for p in plateaus if p["status"] == status]
         if not sel:
