@@ -306,7 +306,9 @@ def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -
     client.publish("airspeed_cmd", 6.0)
     client.wait(lambda: client.got["airspeed"][-1].vector.x > 3.0, 20.0, "airspeed to rise")
     res = client.call(Trigger, "abort", Trigger.Request())
-    assert res.success
+    assert res.success and res.message.startswith("aborted at t = ")
+    again = client.call(Trigger, "abort", Trigger.Request())  # a second press says when and why it stopped
+    assert again.success and again.message.startswith("already aborted at t = ") and "(abort service)" in again.message
     client.wait(lambda: client.diag()["state"] == "aborted", 10.0, "state aborted")
     assert client.got["diag"][-1].status[0].level == DiagnosticStatus.ERROR
     client.wait(lambda: any("rig aborted" in m.msg and m.name.endswith("panel_rig") and m.level >= Log.ERROR

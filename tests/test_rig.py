@@ -203,6 +203,10 @@ def test_operator_abort_and_reset():
     u_before = rig.actuator.airspeed_mps
     rig.abort("test")
     assert rig.state == ABORTED and rig.abort_reason == "test"
+    t_abort = rig.abort_time_s
+    rig.advance_to(2.1)
+    rig.abort("a second press")  # the reason the run stopped for stays (it was replaced)
+    assert rig.abort_reason == "test" and rig.abort_time_s == t_abort and rig.abort_count == 1
     assert rig.actuator.setpoint_mps == 0.0 and rig.shaker.amplitude_npm == 0.0
     refused = rig.command_airspeed(5.0)
     assert not refused.accepted and "reset" in refused.reason

@@ -384,14 +384,17 @@ class Rig:
 
     # ---- emergency stop and reset ----------------------------------------------------------------------------
     def abort(self, reason: str = "operator abort") -> None:
-        """Emergency stop: set-point 0 (the actuator ramps down), shaker and control actuator off, state aborted."""
+        """Emergency stop: set-point 0 (the actuator ramps down), shaker and control actuator off, state aborted.
+        An aborted rig keeps the first abort's reason and time (an operator's abort after a tip-limit abort
+        replaced the reason the run stopped for)."""
         self.actuator.setpoint_mps = 0.0
         self.shaker.reset()
         self.control.reset()
-        if self.state != ABORTED:
-            self.abort_count += 1
-            self.abort_time_s = self._time_s
-            self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
+        if self.state == ABORTED:
+            return
+        self.abort_count += 1
+        self.abort_time_s = self._time_s
+        self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
         self.state = ABORTED
         self.abort_reason = reason
 

@@ -578,9 +578,12 @@ class RigNode(Node):
         return response
 
     def _on_abort(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        self.rig.abort("abort service")
+        rig = self.rig
+        was = rig.state == ABORTED
+        rig.abort("abort service")
         response.success = True
-        response.message = f"aborted at t = {self.rig.time_s:.3f} s; airspeed ramping to 0"
+        response.message = (f"already aborted at t = {rig.abort_time_s:.3f} s ({rig.abort_reason})" if was
+                            else f"aborted at t = {rig.time_s:.3f} s") + "; airspeed ramping to 0"
         return response
 
     # ---- time ------------------------------------------------------------------------------------------
