@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.config import number_if_text
 from panel_rig.paths import make_output_dir
 from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
 
@@ -118,6 +119,24 @@ class _Client:
         self.ex.shutdown()
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.ctx)
+
+
+def diag_number(value: Any) -> Any:
+    """A value of the node's diagnostics (KeyValues carry text) as a number: ``'12'`` -> 12, ``'0.213'`` -> 0.213;
+    None when absent or ``'nan'`` (no samples yet; JSON has no NaN); other text unchanged."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "nan"):
+        return None
+    if isinstance(value, str) and value.strip().isdigit():
+        return int(value)
+    return number_if_text(value)
+
+
+def diagnostics_summary(diag: dict[str, str]) -> dict[str, Any]:
+    """The summary's part from the node's last tunnel diagnostics: command ages (ms) and counts as numbers."""
+    return {"latency_mean_total_ms": diag_number(diag.get("control_latency_mean_total_ms")),
+            "latency_p99_total_ms": diag_number(diag.get("control_latency_p99_total_ms")),
+            "rig_state": diag.get("state"), "control_commands": diag_number(diag.get("control_commands")),
+            "rejected_commands": diag_number(diag.get("rejected_commands"))}
 
 
 def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -> dict[str, Any]:
@@ -215,9 +234,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
             "quiet_airspeed_mps": u_quiet, "quiet_tip_rms_m": rms, "quiet_threshold_m": threshold,
             "quiet": bool(rms < threshold), "command_age_ms": delay_ms, "loop_delay_ms": delay_s * 1e3,
             "onset_airspeeds_mps": speeds.tolist(), "onset_growth_rates_per_s": rates,
-            "law": design.law.as_dict(), "latency_mean_total_ms": d.get("control_latency_mean_total_ms"),
-            "latency_p99_total_ms": d.get("control_latency_p99_total_ms"), "rig_state": d.get("state"),
-            "control_commands": d.get("control_commands"), "rejected_commands": d.get("rejected_commands"),
+            "law": design.law.as_dict(), **diagnostics_summary(d),
         }
     finally:
         client.close()
