@@ -282,3 +282,32 @@ def test_cli_flutter_test_stopped_by_sigterm_reports_its_points(tmp_path, capsys
     assert out["max_airspeed_mps"] == out["test_points"][0]["airspeed_mps"]  # stopped before the next command
     assert (tmp_path / "vg.png").stat().st_size > 0 and out["plot"] == str(tmp_path / "vg.png")
     assert f"`panel-rig analyze {out['bag']}` replays the flutter test" in captured.err
+
+
+def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
+    """The node's result for the point under way can arrive while the stopped client turns the wind off (seen in a
+    run stopped 0.6 s after the first point: 170 s simulated, two monitor results, one point reported). The node
+    identified that point on the whole dwell, so it is counted, bit for bit; a result already taken, for another
+    airspeed, or of a plateau the wind-off cut short, is not."""
+    pytest.importorskip("diagnostic_msgs")
+    from panel_rig.analysis.flutter_test import FlutterTestResult
+    from panel_rig.ros.flutter_live import take_late_result
+    from panel_rig.ros.flutter_monitor import monitor_msg, parse_monitor
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=1.0, n_boot=50)
+    pts = [_point(5.0), _point(6.0)]
+
+    def result(k, end_s):  # the k-th point's result, identified at end_s on a plateau from 100 s (5 + 80 s dwell)
+        plateau = {"plateau_start_s": 100.0, "settle_s": 5.0, "dwell_s": 80.0, "sim_time_s": end_s}
+        return parse_monitor(monitor_msg(k, pts[k - 1], decide(pts[:k], s), 0.1, plateau=plateau))
+
+    res = FlutterTestResult(points=pts[:1], decisions=[decide(pts[:1], s)], max_airspeed_mps=6.0)
+    take_late_result(res, [result(1, 50.0), result(2, 185.0)])
+    assert res.points[-1] == pts[1] and len(res.points) == 2
+    take_late_result(res, [result(1, 50.0), result(2, 185.0)])  # taken: not twice
+    assert len(res.points) == 2
+    cut = FlutterTestResult(points=pts[:1], max_airspeed_mps=6.0)  # the wind-off cut the plateau after 30 s
+    take_late_result(cut, [result(1, 50.0), result(2, 135.0)])
+    ahead = FlutterTestResult(points=pts[:1], max_airspeed_mps=7.0)  # the 7 m/s point's result never came
+    take_late_result(ahead, [result(1, 50.0), result(2, 185.0)])
+    assert len(cut.points) == len(ahead.points) == 1

@@ -238,8 +238,9 @@ def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros
         reader.join(10)
     text = "".join(err)
     assert proc.returncode == 130, text[-2000:]
-    assert out["interrupted"] is True and out["stop_reason"] == "interrupted by SIGINT after 1 test point(s)"
-    assert [p["airspeed_mps"] for p in out["test_points"]] == [START_MPS] and out["node_exit_code"] == 0
+    n = len(out["test_points"])  # 2 only if the second point's whole dwell ended before the signal (~0.7 s wall)
+    assert out["interrupted"] is True and out["stop_reason"] == f"interrupted by SIGINT after {n} test point(s)"
+    assert n in (1, 2) and out["test_points"][0]["airspeed_mps"] == START_MPS and out["node_exit_code"] == 0
     assert out["plot"] == str(tmp_path / "vg.png") and (tmp_path / "vg.png").stat().st_size > 0
     assert f"`panel-rig analyze {out['bag']}` replays the flutter test" in text, text[-2000:]
     assert load_series(out["bag"]).commands["airspeed_cmd"][-1][1] == 0.0  # the wind off, recorded

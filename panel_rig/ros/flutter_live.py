@@ -12,7 +12,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import yaml
 
@@ -26,6 +26,9 @@ from panel_rig.processes import (
     stop,
 )
 
+if TYPE_CHECKING:
+    from panel_rig.analysis.flutter_test import FlutterTestResult
+
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
 
@@ -35,7 +38,7 @@ class Drive:
     """What the client's side gathered, also when it was stopped part-way: the procedure's result so far, the
     monitor's messages, and the wall times of the node's start-up and of the test (s; nan: not reached)."""
 
-    res: Any  # FlutterTestResult
+    res: FlutterTestResult
     results: list[dict[str, Any]] = field(default_factory=list)
     startup_s: float = math.nan
     test_s: float = math.nan
@@ -124,6 +127,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         code = stop(node, STOP_WAIT_S)
     res = drive.res
     if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
+        take_late_result(res, drive.results)
         interrupted_result(res, settings, stopped.name)
     bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
     res.bag = str(bags[-1]) if bags and bag_dir is not None else None
@@ -145,6 +149,25 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         where = f"recording and node log in {run_dir}"
         raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
     return out
+
+
+def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> None:
+    """The node's result for the point under way that a stopped client did not take (it came while the client
+    turned the wind off): ``res`` counts its flutter, or the point if its window was the whole dwell (the wind-off
+    cuts the plateau, and the node identifies a cut one too when it kept the minimum dwell: not a point of the
+    test's plan)."""
+    from panel_rig.ros.flutter_monitor import point_from_values
+
+    u = res.max_airspeed_mps  # the point under way: its airspeed is commanded before it is measured
+    if not results or u <= 0 or res.fluttered or (res.points and res.points[-1].airspeed_mps == u):
+        return
+    v = results[-1]
+    if v.get("airspeed_mps") != u:
+        return
+    if v.get("fluttered") == "true":
+        res.fluttered = True
+    elif v["sim_time_s"] >= v["plateau_start_s"] + v["settle_s"] + v["dwell_s"] - 1e-6:
+        res.points.append(point_from_values(v))
 
 
 def _finite(x: Any) -> float | None:
