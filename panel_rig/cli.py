@@ -19,7 +19,7 @@ from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 from panel_rig.paths import make_output_dir, rrd_path_problem
-from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS
+from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Interrupted
 
 
 class UsageError(Exception):
@@ -545,6 +545,11 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     except RuntimeError as exc:  # the live node failed to start or stopped answering (its log is named)
         print(f"panel-rig flutter-test: {exc}", file=sys.stderr)
         return 1
+    except Interrupted as stopped:  # Ctrl-C, SIGTERM: the points identified so far, reported as a finished test's
+        print(stopped.message, file=sys.stderr, flush=True)
+        partial = stopped.payload
+        _emit(args, partial, lambda: format_flutter_test(partial))
+        return stopped.exit_status
     _emit(args, out, lambda: format_flutter_test(out))
     return 1 if out["fluttered"] else 0
 

@@ -28,8 +28,17 @@ from typing import Any
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.config import number_if_text
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
+from panel_rig.processes import (
+    Interrupted,
+    interruption,
+    module_command,
+    private_domain_id,
+    sigterm_exits,
+    spawn,
+    stop,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET_AT = 1.2  # x open-loop U_f
@@ -120,6 +129,24 @@ class _Client:
         self._rclpy.shutdown(context=self.ctx)
 
 
+def diag_number(value: Any) -> Any:
+    """A value of the node's diagnostics (KeyValues carry text) as a number: ``'12'`` -> 12, ``'0.213'`` -> 0.213;
+    None when absent or ``'nan'`` (no samples yet; JSON has no NaN); other text unchanged."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "nan"):
+        return None
+    if isinstance(value, str) and value.strip().isdigit():
+        return int(value)
+    return number_if_text(value)
+
+
+def diagnostics_summary(diag: dict[str, str]) -> dict[str, Any]:
+    """The summary's part from the node's last tunnel diagnostics: command ages (ms) and counts as numbers."""
+    return {"latency_mean_total_ms": diag_number(diag.get("control_latency_mean_total_ms")),
+            "latency_p99_total_ms": diag_number(diag.get("control_latency_p99_total_ms")),
+            "rig_state": diag.get("state"), "control_commands": diag_number(diag.get("control_commands")),
+            "rejected_commands": diag_number(diag.get("rejected_commands"))}
+
+
 def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -> dict[str, Any]:
     """The whole demonstration; returns the summary (also written to ``out/summary.json``)."""
     from panel_rig.analysis.control import (
@@ -132,7 +159,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     )
     from panel_rig.config import load_config
     from panel_rig.model.aeroelastic import AeroelasticModel
-    from panel_rig.rig.control import ControlSettings, envelope_growth_rate
+    from panel_rig.rig.control import ControlSettings
 
     cfg = load_config()
     model = AeroelasticModel(cfg)
@@ -168,66 +195,93 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     client = _Client(int(env["ROS_DOMAIN_ID"]))
-    summary: dict[str, Any] = {}
+    # filled as it is measured: an interrupted demo writes what it has
+    summary: dict[str, Any] = {
+        "interrupted": False, "open_loop_flutter_speed_mps": u_f, "closed_loop_flutter_speed_mps": pred.speed_mps,
+        "command_age_ms": delay_ms, "loop_delay_ms": delay_s * 1e3, "law": design.law.as_dict(),
+        "quiet_airspeed_mps": None, "quiet_tip_rms_m": None, "quiet_threshold_m": None, "quiet": None}
+    rates: list[float] = []
+    stopped = None
     try:
         client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
-        # 1. quiet at 1.2 U_f
-        u_quiet = QUIET_AT * u_f
-        client.send("airspeed_cmd", u_quiet)
-        client.wait(lambda: client.airspeed > 0.999 * u_quiet, 60.0, "the tunnel at 1.2 U_f")
-        t_tap = client.tap()
-        client.wait_sim(6.0)
-        _, w = client.window(t_tap + 4.0, t_tap + 6.0)
-        rms = float(np.sqrt(np.mean(w**2))) if w.size else math.nan
-        threshold = QUIET_FACTOR * SENSOR_NOISE_M
-        log(f"1.2 U_f = {u_quiet:.2f} m/s: tip RMS {rms * 1e6:.2f} um over t_tap + 4..6 s (quiet below "
-            f"{threshold * 1e6:.0f} um = {QUIET_FACTOR:g} x sensor noise {SENSOR_NOISE_M * 1e6:g} um)")
-        # 2. onset
-        rates = []
-        for fac in ONSET_FACTORS:
-            if client.diag.get("state") != "running":
-                break  # the flutter reached the tip limit and the rig aborted: the onset lies below this step
-            u = fac * pred.speed_mps
-            client.send("airspeed_cmd", u)
-            client.wait(lambda u=u: abs(client.airspeed - u) < 1e-3 * u, 60.0, f"the tunnel at {u:.2f} m/s")
-            client.wait_sim(SETTLE_S)
-            t0 = client.tap(ONSET_TAP_NPM)
-            client.wait_sim(WINDOW_S)
-            t, w = client.window(t0 + 0.5, t0 + WINDOW_S)
-            aborted = client.diag.get("state") != "running"  # the window ends in an abort: no rate to measure
-            g = envelope_growth_rate(t, w) if t.size > 50 and not aborted else math.nan
-            rates.append(g)
-            log(f"  U = {u:.3f} m/s ({fac:.3f} x predicted): tip envelope growth rate {g:+.3f} 1/s"
-                + (" (the rig aborted in this window: the flutter reached the tip limit)" if aborted else ""))
-            if client.diag.get("state") != "running" or (g > 0 and any(x < 0 for x in rates[:-1])):
-                break  # the onset is bracketed: no need to let the flutter grow further
+        summary.update(_quiet_check(client, u_f))
+        log(f"1.2 U_f = {summary['quiet_airspeed_mps']:.2f} m/s: tip RMS {summary['quiet_tip_rms_m'] * 1e6:.2f} um "
+            f"over t_tap + 4..6 s (quiet below {summary['quiet_threshold_m'] * 1e6:.0f} um = {QUIET_FACTOR:g} x "
+            f"sensor noise {SENSOR_NOISE_M * 1e6:g} um)")  # after the update: a stop now keeps what it says
+        _onset_steps(client, pred.speed_mps, rates, log)
         client.send("airspeed_cmd", 0.0)
-        d = dict(client.diag)
-        speeds = np.array(ONSET_FACTORS[: len(rates)]) * pred.speed_mps
-        r = np.array(rates)
-        cross = [i for i in range(len(r) - 1) if r[i] < 0 <= r[i + 1]]
-        onset = (float(speeds[cross[0]] - r[cross[0]] * (speeds[cross[0] + 1] - speeds[cross[0]])
-                       / (r[cross[0] + 1] - r[cross[0]])) if cross else None)
-        summary = {
-            "open_loop_flutter_speed_mps": u_f, "closed_loop_flutter_speed_mps": pred.speed_mps,
-            "emulated_closed_loop_onset_mps": onset,
-            "onset_error": None if onset is None else onset / pred.speed_mps - 1.0,
-            "quiet_airspeed_mps": u_quiet, "quiet_tip_rms_m": rms, "quiet_threshold_m": threshold,
-            "quiet": bool(rms < threshold), "command_age_ms": delay_ms, "loop_delay_ms": delay_s * 1e3,
-            "onset_airspeeds_mps": speeds.tolist(), "onset_growth_rates_per_s": rates,
-            "law": design.law.as_dict(), "latency_mean_total_ms": d.get("control_latency_mean_total_ms"),
-            "latency_p99_total_ms": d.get("control_latency_p99_total_ms"), "rig_state": d.get("state"),
-            "control_commands": d.get("control_commands"), "rejected_commands": d.get("rejected_commands"),
-        }
+    except (KeyboardInterrupt, SystemExit) as exc:
+        stopped = interruption(exc)
+        if stopped is None:
+            raise
     finally:
+        summary.update(**onset_summary(rates, pred.speed_mps), **diagnostics_summary(dict(client.diag)))
         client.close()
         ctl_code = stop(ctl, STOP_TIMEOUT_S)
         node_code = stop(node, STOP_TIMEOUT_S)
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
-    summary.update(bag=str(new[-1]) if new else None, rerun=str(rrd) if rrd.exists() else None,
-                   node_exit=node_code, controller_exit=ctl_code, node_log=str(node_log))
-    (out / "summary.json").write_text(jsonio.dumps(summary, indent=1))
+    summary.update(interrupted=stopped is not None, bag=str(new[-1]) if new else None,
+                   rerun=str(rrd) if rrd.exists() else None, node_exit=node_code, controller_exit=ctl_code,
+                   node_log=str(node_log), controller_log=str(ctl_log))
+    path = out / "summary.json"
+    path.write_text(jsonio.dumps(summary, indent=1))
+    if stopped is not None:
+        raise Interrupted(stopped, summary, f"stopped by {stopped.name}: what was measured so far is in {path} "
+                                            f"(bag {summary['bag']}, node log {node_log})")
     return summary
+
+
+def _quiet_check(client: _Client, u_f: float) -> dict[str, Any]:
+    """Step 1: a tap at QUIET_AT x U_f, the tip RMS 4..6 s after it against the quiet threshold."""
+    from panel_rig.analysis.control import QUIET_FACTOR, SENSOR_NOISE_M
+
+    u_quiet = QUIET_AT * u_f
+    client.send("airspeed_cmd", u_quiet)
+    client.wait(lambda: client.airspeed > 0.999 * u_quiet, 60.0, "the tunnel at 1.2 U_f")
+    t_tap = client.tap()
+    client.wait_sim(6.0)
+    _, w = client.window(t_tap + 4.0, t_tap + 6.0)
+    rms = float(np.sqrt(np.mean(w**2))) if w.size else math.nan
+    threshold = QUIET_FACTOR * SENSOR_NOISE_M
+    return {"quiet_airspeed_mps": u_quiet, "quiet_tip_rms_m": rms, "quiet_threshold_m": threshold,
+            "quiet": bool(rms < threshold)}
+
+
+def _onset_steps(client: _Client, pred_mps: float, rates: list[float], log: Callable[[str], None]) -> None:
+    """Step 2: up through ONSET_FACTORS x the predicted closed-loop U_f, a tap at each, the envelope's growth rate
+    (1/s) appended to ``rates`` as it is measured; stops once the zero crossing is bracketed or the rig aborts."""
+    from panel_rig.rig.control import envelope_growth_rate
+
+    for fac in ONSET_FACTORS:
+        if client.diag.get("state") != "running":
+            break  # the flutter reached the tip limit and the rig aborted: the onset lies below this step
+        u = fac * pred_mps
+        client.send("airspeed_cmd", u)
+        client.wait(lambda u=u: abs(client.airspeed - u) < 1e-3 * u, 60.0, f"the tunnel at {u:.2f} m/s")
+        client.wait_sim(SETTLE_S)
+        t0 = client.tap(ONSET_TAP_NPM)
+        client.wait_sim(WINDOW_S)
+        t, w = client.window(t0 + 0.5, t0 + WINDOW_S)
+        aborted = client.diag.get("state") != "running"  # the window ends in an abort: no rate to measure
+        g = envelope_growth_rate(t, w) if t.size > 50 and not aborted else math.nan
+        rates.append(g)
+        log(f"  U = {u:.3f} m/s ({fac:.3f} x predicted): tip envelope growth rate {g:+.3f} 1/s"
+            + (" (the rig aborted in this window: the flutter reached the tip limit)" if aborted else ""))
+        if client.diag.get("state") != "running" or (g > 0 and any(x < 0 for x in rates[:-1])):
+            break  # the onset is bracketed: no need to let the flutter grow further
+
+
+def onset_summary(rates: Sequence[float], pred_mps: float) -> dict[str, Any]:
+    """The onset steps measured so far (growth rates, 1/s, at ONSET_FACTORS x ``pred_mps``) and the emulated
+    onset: the first zero crossing of the rate, interpolated (None until one is bracketed)."""
+    speeds = np.array(ONSET_FACTORS[: len(rates)]) * pred_mps
+    r = np.array(rates, dtype=float)
+    cross = [i for i in range(len(r) - 1) if r[i] < 0 <= r[i + 1]]
+    onset = (float(speeds[cross[0]] - r[cross[0]] * (speeds[cross[0] + 1] - speeds[cross[0]])
+                   / (r[cross[0] + 1] - r[cross[0]])) if cross else None)
+    return {"emulated_closed_loop_onset_mps": onset,
+            "onset_error": None if onset is None else onset / pred_mps - 1.0,
+            "onset_airspeeds_mps": speeds.tolist(), "onset_growth_rates_per_s": list(rates)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -255,6 +309,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DemoError as exc:
         print(f"panel-rig control-demo: {exc}", file=sys.stderr)
         return 1
+    except Interrupted as stopped:  # Ctrl-C, SIGTERM: node and controller stopped, summary.json written
+        print(f"panel-rig control-demo: {stopped.message}", file=sys.stderr, flush=True)
+        if args.json:
+            print(jsonio.dumps(stopped.payload))
+        return stopped.exit_status
     ok = s.get("quiet") and s.get("onset_error") is not None and abs(s["onset_error"]) <= 0.05 and s["bag"]
     if args.json:
         print(jsonio.dumps(s))

@@ -24,6 +24,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from panel_rig.processes import Interrupted, interruption, sigterm_exits
+
 NAMESPACE = "/rig"
 
 
@@ -115,7 +117,8 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
                      domain_id: int | None = None, max_points: int | None = None,
                      progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run the procedure (live node by default, see the module docstring); returns the JSON payload.
-    ``progress``: called with :func:`point_line` after each test point."""
+    ``progress``: called with :func:`point_line` after each test point. Stopped by Ctrl-C or SIGTERM, it raises
+    :class:`panel_rig.processes.Interrupted` with the payload of the points identified so far."""
     if in_process:
         return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s,
                               max_points, progress)
@@ -135,13 +138,20 @@ def point_line(index: int, point: Any, decision: Any) -> str:
     return f"point {index}: {point.airspeed_mps:.3f} m/s: {found}; {nxt} ({decision.reason})"
 
 
+def stopped_message(signum: Any, n_points: int, where: str, bag: str | None) -> str:
+    """The line an interrupted test prints: how many points, where its files are, how to replay it."""
+    replay = "" if bag is None else f"; `panel-rig analyze {bag}` replays the flutter test from the recording"
+    return (f"flutter-test stopped by {signum.name} after {n_points} identified test point(s) (a test under way "
+            f"commands the tunnel to 0 m/s first); {where}{replay}")
+
+
 def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                    bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                    params: dict[str, Any] | None = None, dwell_s: float | None = None,
                    settle_s: float | None = None, max_points: int | None = None,
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
-    from panel_rig.analysis.flutter_test import bands_from_model, run_procedure
+    from panel_rig.analysis.flutter_test import FlutterTestResult, bands_from_model, interrupted_result, run_procedure
     from panel_rig.rig.flutter_run import pretest_plan, rig_measure, start_warning
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
@@ -190,8 +200,14 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         if viz is not None:
             viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
 
+    res, stopped = FlutterTestResult(), None
     try:
-        res = run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point)
+        with sigterm_exits():  # SIGTERM leaves through the clean-up below as Ctrl-C does
+            run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point, res)
+    except (KeyboardInterrupt, SystemExit) as exc:
+        stopped = interruption(exc)
+        if stopped is None:
+            raise
     finally:
         rig.command_airspeed(0.0)
         for s in sinks:
@@ -201,15 +217,20 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             writer.close()
         if viz is not None:
             viz.close()
+    if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
+        interrupted_result(res, settings, stopped.name)
     res.bag = str(writer.bag_dir) if writer is not None else None
     out = res.as_dict()
     out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
                dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
                wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
-    if plot is not None:
+    if plot is not None and (stopped is None or res.points):
         from panel_rig.analysis.plots import plot_flutter_test
 
         out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
+    if stopped is not None:
+        where = "no recording" if res.bag is None else f"recording in {res.bag}"
+        raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
     return out
 
 
@@ -230,8 +251,8 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     lines.append(f"{pred}; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
     lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; fluttered: {out['fluttered']}; "
                  f"stop: {out['stop_reason']}")
-    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {out['node_rtf']:.1f})" if out.get("live")
-             else "in-process rig")
+    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {num(out['node_rtf'], '.1f')})"
+             if out.get("live") else "in-process rig")
     lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {out['simulated_s']:.0f} s simulated in "
                  f"{out['wall_s']:.1f} s wall on the {where}")
     return "\n".join(lines)

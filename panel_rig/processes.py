@@ -76,6 +76,31 @@ def sigterm_exits() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def interruption(exc: BaseException) -> signal.Signals | None:
+    """The signal an exception stands for: SIGINT for KeyboardInterrupt (Ctrl-C), SIGTERM for the SystemExit of
+    :func:`sigterm_exits`; None for any other."""
+    if isinstance(exc, KeyboardInterrupt):
+        return signal.SIGINT
+    if isinstance(exc, SystemExit) and exc.code == TERMINATED_STATUS:
+        return signal.SIGTERM
+    return None
+
+
+class Interrupted(BaseException):
+    """A run stopped by a signal, with what it measured so far (``payload``, to report) and a line saying so
+    (``message``). A BaseException, as KeyboardInterrupt: no ``except Exception`` on the way takes it for an
+    error."""
+
+    def __init__(self, signum: signal.Signals, payload: dict, message: str) -> None:
+        super().__init__(message)
+        self.signum, self.payload, self.message = signum, payload, message
+
+    @property
+    def exit_status(self) -> int:
+        """The shell's status for the signal (130 Ctrl-C, 143 SIGTERM)."""
+        return 128 + int(self.signum)
+
+
 def module_command(module: str, *args: str) -> list[str]:
     """``python -P -m module args``: a child program of this install. ``-P`` keeps the working directory off
     sys.path, so a ``panel_rig/`` directory where the user stands (another checkout) is never what the child runs

@@ -212,3 +212,106 @@ def test_a_start_inside_the_margin_is_warned_of():
     assert start_warning(9.4, 10.48, 0.1) is None
     text = start_warning(10.0, 10.48, 0.1)
     assert text is not None and "9.432 m/s" in text and "may flutter" in text
+
+
+def test_a_test_stopped_part_way_keeps_its_points_and_their_prediction():
+    """Ctrl-C in the third point's dwell: the caller's result holds the two points identified, the airspeed
+    commanded for the third, and, made into an interrupted result, the prediction of those points and a stop reason
+    that says so. Before, run_points built its result inside and a stop lost it."""
+    from panel_rig.analysis.flutter_test import FlutterTestResult, interrupted_result, run_points
+
+    settings = FlutterTestSettings(start_mps=5.0, step_mps=1.0, n_boot=50)
+
+    def next_point(u):
+        if u > 6.5:
+            raise KeyboardInterrupt
+        return _point(u), False
+
+    res = FlutterTestResult()
+    with pytest.raises(KeyboardInterrupt):
+        run_points(next_point, settings, res=res)
+    assert [p.airspeed_mps for p in res.points] == [5.0, 6.0] and res.max_airspeed_mps == 7.0
+    out = interrupted_result(res, settings, "SIGINT").as_dict()
+    assert out["interrupted"] is True and len(out["test_points"]) == 2
+    assert out["stop_reason"] == "interrupted by SIGINT after 2 test point(s)"
+    assert out["predicted_flutter_speed_mps"] is None  # two points without a first mode: no predictor yet
+
+
+def test_an_interrupted_result_takes_the_decision_the_stop_cut_off():
+    """A stop between a point's identification and its decision (the bootstrap takes a while): the decision, and so
+    the prediction, is taken from all the points identified; a test that had stopped on its own says why too."""
+    from panel_rig.analysis.flutter_test import FlutterTestResult, interrupted_result
+
+    settings = FlutterTestSettings(start_mps=5.0, step_mps=1.0, n_boot=50)
+    pts = [_point(u) for u in (6.0, 7.0, 8.0, 9.2)]  # 9.2 m/s: inside the 0.1 margin of U_f 10 m/s
+    res = FlutterTestResult(points=pts, decisions=[decide(pts[:k], settings) for k in (1, 2, 3)])
+    out = interrupted_result(res, settings, "SIGTERM").as_dict()
+    assert len(res.decisions) == 4 and out["predicted_flutter_speed_mps"] == pytest.approx(UF, rel=0.05)
+    assert out["stop_reason"].startswith("interrupted by SIGTERM after 4 test point(s); the procedure had stopped")
+    empty = interrupted_result(FlutterTestResult(), settings, "SIGINT").as_dict()
+    assert empty["test_points"] == [] and empty["predicted_flutter_speed_mps"] is None and empty["interrupted"]
+    assert FlutterTestResult().as_dict()["interrupted"] is False
+
+
+def test_cli_flutter_test_stopped_by_sigterm_reports_its_points(tmp_path, capsys, monkeypatch):
+    """SIGTERM after the first point of an in-process test: the JSON of the points so far, marked interrupted, the
+    plot, and status 143; the line on stderr says how to replay the recording. Before, SIGTERM killed the process
+    at once (the test's own handler stands in for that here) and nothing was reported."""
+    import json
+    import os
+    import signal
+
+    from panel_rig import flutter_cli
+    from panel_rig.cli import main
+
+    def terminate_after(index, point, decision):  # as `kill` lands just after the first point is identified
+        os.kill(os.getpid(), signal.SIGTERM)
+        return real(index, point, decision)
+
+    def killed(signum, frame):  # the default action would end pytest: end the command instead
+        raise SystemExit(-signal.SIGTERM)
+
+    real = flutter_cli.point_line
+    monkeypatch.setattr(flutter_cli, "point_line", terminate_after)
+    previous = signal.signal(signal.SIGTERM, killed)
+    try:
+        code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
+                     "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert code == 143 and out["interrupted"] is True, captured.err
+    assert len(out["test_points"]) == 1 and out["stop_reason"].startswith("interrupted by SIGTERM after 1 test")
+    assert out["max_airspeed_mps"] == out["test_points"][0]["airspeed_mps"]  # stopped before the next command
+    assert (tmp_path / "vg.png").stat().st_size > 0 and out["plot"] == str(tmp_path / "vg.png")
+    assert f"`panel-rig analyze {out['bag']}` replays the flutter test" in captured.err
+
+
+def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
+    """The node's result for the point under way can arrive while the stopped client turns the wind off (seen in a
+    run stopped 0.6 s after the first point: 170 s simulated, two monitor results, one point reported). The node
+    identified that point on the whole dwell, so it is counted, bit for bit; a result already taken, for another
+    airspeed, or of a plateau the wind-off cut short, is not."""
+    pytest.importorskip("diagnostic_msgs")
+    from panel_rig.analysis.flutter_test import FlutterTestResult
+    from panel_rig.ros.flutter_live import take_late_result
+    from panel_rig.ros.flutter_monitor import monitor_msg, parse_monitor
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=1.0, n_boot=50)
+    pts = [_point(5.0), _point(6.0)]
+
+    def result(k, end_s):  # the k-th point's result, identified at end_s on a plateau from 100 s (5 + 80 s dwell)
+        plateau = {"plateau_start_s": 100.0, "settle_s": 5.0, "dwell_s": 80.0, "sim_time_s": end_s}
+        return parse_monitor(monitor_msg(k, pts[k - 1], decide(pts[:k], s), 0.1, plateau=plateau))
+
+    res = FlutterTestResult(points=pts[:1], decisions=[decide(pts[:1], s)], max_airspeed_mps=6.0)
+    take_late_result(res, [result(1, 50.0), result(2, 185.0)])
+    assert res.points[-1] == pts[1] and len(res.points) == 2
+    take_late_result(res, [result(1, 50.0), result(2, 185.0)])  # taken: not twice
+    assert len(res.points) == 2
+    cut = FlutterTestResult(points=pts[:1], max_airspeed_mps=6.0)  # the wind-off cut the plateau after 30 s
+    take_late_result(cut, [result(1, 50.0), result(2, 135.0)])
+    ahead = FlutterTestResult(points=pts[:1], max_airspeed_mps=7.0)  # the 7 m/s point's result never came
+    take_late_result(ahead, [result(1, 50.0), result(2, 185.0)])
+    assert len(cut.points) == len(ahead.points) == 1

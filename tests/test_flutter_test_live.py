@@ -134,7 +134,8 @@ def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys):
 
 def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env, tmp_path):
     """SIGTERM (a `kill`, a job scheduler) during a test point: the same clean stop as Ctrl-C. Before, the client
-    died at once and its rig node ran on as an orphan, recording, with the wind on."""
+    died at once and its rig node ran on as an orphan, recording, with the wind on. The table of what was measured
+    (nothing yet: the first point was under way) is printed all the same."""
     import signal
     import subprocess
     import sys
@@ -177,7 +178,7 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
         node_procs = psutil.Process(proc.pid).children(recursive=True)
         assert node_procs, "no rig node under the flutter test"
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
+        out, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -186,11 +187,63 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
         watcher.destroy_node()
         rclpy.shutdown(context=ctx)
     assert proc.returncode == 143, err[-2000:]
-    assert "flutter-test stopped" in err, err[-2000:]
+    assert "flutter-test stopped by SIGTERM after 0 identified test point(s)" in err, err[-2000:]
+    assert "stop: interrupted by SIGTERM after 0 test point(s)" in out, out
+    assert f"max airspeed {commands[0]:.3f} m/s" in out, out  # the point under way was commanded
     gone, alive = psutil.wait_procs(node_procs, timeout=10)
     assert not alive, f"left running: {alive}"
     bag = load_series(next(tmp_path.glob("flutter_test_*/rig_*")))
     assert bag.commands["airspeed_cmd"][-1][1] == 0.0, bag.commands["airspeed_cmd"]  # the wind off, recorded
+
+
+def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros_env, tmp_path):
+    """Ctrl-C after the first test point (during the second, or just before its command): the JSON of the first
+    point, marked interrupted, its plot, the wind off recorded, the node stopped (exit 0), status 130, and a line
+    naming the replay of the recording. Before, only the progress lines showed what had been found."""
+    import queue
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    pytest.importorskip("rclpy")
+    from panel_rig.recording.series import load_series
+
+    proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "flutter-test", "--domain-id",
+                             ros_env["ROS_DOMAIN_ID"], "--set", "panel.thickness_m=0.0004", "--start-mps",
+                             str(START_MPS), "--dwell", str(DWELL_S), "--max-points", "3", "--json", "--bag-dir",
+                             str(tmp_path), "--plot", str(tmp_path / "vg.png")], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: queue.Queue[str] = queue.Queue()
+    err: list[str] = []
+
+    def read() -> None:  # stderr line by line: the test waits for a line, never for a time
+        for ln in proc.stderr:
+            err.append(ln)
+            lines.put(ln)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        line = ""
+        while not line.startswith("point 1:"):  # the first point identified and decided: the second is under way
+            line = lines.get(timeout=240)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=120)
+        out = json.loads(proc.stdout.read())
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(10)
+    text = "".join(err)
+    assert proc.returncode == 130, text[-2000:]
+    n = len(out["test_points"])  # 2 only if the second point's whole dwell ended before the signal (~0.7 s wall)
+    assert out["interrupted"] is True and out["stop_reason"] == f"interrupted by SIGINT after {n} test point(s)"
+    assert n in (1, 2) and out["test_points"][0]["airspeed_mps"] == START_MPS and out["node_exit_code"] == 0
+    assert out["plot"] == str(tmp_path / "vg.png") and (tmp_path / "vg.png").stat().st_size > 0
+    assert f"`panel-rig analyze {out['bag']}` replays the flutter test" in text, text[-2000:]
+    assert load_series(out["bag"]).commands["airspeed_cmd"][-1][1] == 0.0  # the wind off, recorded
 
 
 def test_flutter_test_refuses_a_domain_where_another_rig_takes_its_commands(ros_env, tmp_path):

@@ -252,13 +252,15 @@ def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[f
 
 @dataclass
 class FlutterTestResult:
-    """The whole test: the points, the last decision, the highest airspeed reached, whether it fluttered."""
+    """The whole test: the points, the last decision, the highest airspeed commanded, whether it fluttered, and
+    the signal that stopped it (``interrupted``, e.g. ``"SIGINT"``; None: the procedure ended on its own)."""
 
     points: list[TestPoint] = field(default_factory=list)
     decisions: list[Decision] = field(default_factory=list)
     max_airspeed_mps: float = 0.0
     fluttered: bool = False
     bag: str | None = None
+    interrupted: str | None = None
 
     @property
     def final(self) -> Decision | None:
@@ -274,23 +276,43 @@ class FlutterTestResult:
                "prediction_method": None if pred is None else pred.method,
                "max_airspeed_mps": self.max_airspeed_mps,
                "fluttered": bool(self.fluttered),
-               "stop_reason": None if d is None else d.reason,
+               "interrupted": self.interrupted is not None,
+               "stop_reason": self._stop_reason(),
                "bag": self.bag}
         for name, p in (("damping_trend", d.trend if d else None), ("zimmerman_weissenburger", d.zw if d else None)):
             out[name] = None if p is None else p.as_dict()
         return out
 
+    def _stop_reason(self) -> str | None:
+        d = self.final
+        if self.interrupted is None:
+            return None if d is None else d.reason
+        done = "" if d is None or not d.stop else f"; the procedure had stopped: {d.reason}"
+        return f"interrupted by {self.interrupted} after {len(self.points)} test point(s){done}"
+
+
+def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, signal_name: str
+                       ) -> FlutterTestResult:
+    """``res`` of a test stopped by ``signal_name`` part-way: the points identified so far with the decision (and
+    so the prediction, if they give one) after the last of them, taken here when the stop came before it was."""
+    if len(res.decisions) < len(res.points):
+        res.decisions.append(decide(res.points, settings))
+    res.interrupted = signal_name
+    return res
+
 
 def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], settings: FlutterTestSettings,
-               on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
+               on_point: Callable[[TestPoint, Decision], None] | None = None,
+               res: FlutterTestResult | None = None) -> FlutterTestResult:
     """The procedure's loop: ``next_point(U)`` sets the airspeed, dwells and returns (the identified test point,
     fluttered); a decision after each point; stops on the decision or on flutter. The identification happens
-    wherever ``next_point`` gets it from (here for :func:`run_procedure`, in the rig node for the live test)."""
-    res = FlutterTestResult()
+    wherever ``next_point`` gets it from (here for :func:`run_procedure`, in the rig node for the live test).
+    ``res``: the caller's result to fill (a test stopped part-way leaves the points so far in it)."""
+    res = FlutterTestResult() if res is None else res
     u: float | None = settings.start_mps
     while u is not None:
+        res.max_airspeed_mps = max(res.max_airspeed_mps, u)  # commanded: also when the point is cut short
         pt, fluttered = next_point(u)
-        res.max_airspeed_mps = max(res.max_airspeed_mps, u)
         if fluttered or pt is None:
             res.fluttered = res.fluttered or fluttered
             break
@@ -305,9 +327,11 @@ def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], set
 
 def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray | None, bool]],
                   bands: Callable[[float], list[tuple[float, float]]], settings: FlutterTestSettings,
-                  on_point: Callable[[TestPoint, Decision], None] | None = None) -> FlutterTestResult:
+                  on_point: Callable[[TestPoint, Decision], None] | None = None,
+                  res: FlutterTestResult | None = None) -> FlutterTestResult:
     """Drive a test: ``measure(U)`` sets the airspeed, dwells and returns (measured tip, dt, shaker force or None,
-    fluttered); identification here and decision after each point; stops on the decision or on flutter."""
+    fluttered); identification here and decision after each point; stops on the decision or on flutter. ``res``:
+    as for :func:`run_points`."""
 
     def next_point(u: float) -> tuple[TestPoint | None, bool]:
         tip, dt, force, fluttered = measure(u)
@@ -315,7 +339,7 @@ def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray
             return None, True
         return identify_point(tip, dt, u, bands(u), force, settings.ssi), False
 
-    return run_points(next_point, settings, on_point)
+    return run_points(next_point, settings, on_point, res)
 
 
 def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: float

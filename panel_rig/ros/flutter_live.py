@@ -5,20 +5,43 @@ it, and hand back the JSON payload. See :mod:`panel_rig.flutter_cli` for why a s
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import subprocess
-import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import yaml
 
-from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
+from panel_rig.processes import (
+    Interrupted,
+    interruption,
+    module_command,
+    private_domain_id,
+    sigterm_exits,
+    spawn,
+    stop,
+)
+
+if TYPE_CHECKING:
+    from panel_rig.analysis.flutter_test import FlutterTestResult
 
 NAMESPACE = "/rig"
 STOP_WAIT_S = 60.0  # wall: the node closes its bag on SIGINT
+
+
+@dataclass
+class Drive:
+    """What the client's side gathered, also when it was stopped part-way: the procedure's result so far, the
+    monitor's messages, and the wall times of the node's start-up and of the test (s; nan: not reached)."""
+
+    res: FlutterTestResult
+    results: list[dict[str, Any]] = field(default_factory=list)
+    startup_s: float = math.nan
+    test_s: float = math.nan
 
 
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
@@ -80,57 +103,83 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     log_path = run_dir / "node.log"
     with open(log_path, "w") as log:  # its own session: a Ctrl-C in the terminal reaches this process only, which
         node = spawn(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)  # winds off before stopping the node
+    from panel_rig.analysis.flutter_test import FlutterTestResult, interrupted_result
+    from panel_rig.flutter_cli import point_line, stopped_message
     from panel_rig.ros.flutter_client import RigGone
 
-    points: list[Any] = []
+    drive = Drive(FlutterTestResult())
 
     def on_point(point: Any, decision: Any) -> None:
-        points.append(point)
         if progress is not None:
-            from panel_rig.flutter_cli import point_line
+            progress(point_line(len(drive.res.points), point, decision))
 
-            progress(point_line(len(points), point, decision))
-
+    stopped = None
     try:
         with sigterm_exits():  # a killed test must not leave its node running
-            res, results, timing = _drive(node, did, settings, startup_s, on_point)
+            _drive(node, did, settings, startup_s, drive, on_point)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
-    except (KeyboardInterrupt, SystemExit):
-        print(f"flutter-test stopped after {len(points)} identified test point(s) (a test under way commands the "
-              f"tunnel to 0 m/s first); recording and node log in {run_dir}", file=sys.stderr)
-        raise
+    except (KeyboardInterrupt, SystemExit) as exc:
+        stopped = interruption(exc)
+        if stopped is None:
+            raise
     finally:
         code = stop(node, STOP_WAIT_S)
+    res = drive.res
+    if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
+        take_late_result(res, drive.results)
+        interrupted_result(res, settings, stopped.name)
     bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
     res.bag = str(bags[-1]) if bags and bag_dir is not None else None
     out = res.as_dict()
+    results = drive.results
     last = results[-1] if results else {}
     sim = float(last.get("sim_time_s", float("nan")))
     out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=True,
                dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
-               wall_s=time.monotonic() - t0, node_startup_wall_s=timing["startup_s"],
-               test_wall_s=timing["test_s"], node_rtf=sim / timing["test_s"] if timing["test_s"] > 0 else None,
+               wall_s=time.monotonic() - t0, node_startup_wall_s=drive.startup_s,
+               test_wall_s=drive.test_s, node_rtf=sim / drive.test_s if drive.test_s > 0 else None,
                node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
                node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
                monitor_times_s=[float(r["sim_time_s"]) for r in results],
                identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
-    if plot is not None:
+    if plot is not None and (stopped is None or res.points):
         from panel_rig.analysis.plots import plot_flutter_test
 
         out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
+    if stopped is not None:
+        where = f"recording and node log in {run_dir}"
+        raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
     return out
 
 
-def _finite(x: Any) -> float | None:
-    import math
+def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> None:
+    """The node's result for the point under way that a stopped client did not take (it came while the client
+    turned the wind off): ``res`` counts its flutter, or the point if its window was the whole dwell (the wind-off
+    cuts the plateau, and the node identifies a cut one too when it kept the minimum dwell: not a point of the
+    test's plan)."""
+    from panel_rig.ros.flutter_monitor import point_from_values
 
+    u = res.max_airspeed_mps  # the point under way: its airspeed is commanded before it is measured
+    if not results or u <= 0 or res.fluttered or (res.points and res.points[-1].airspeed_mps == u):
+        return
+    v = results[-1]
+    if v.get("airspeed_mps") != u:
+        return
+    if v.get("fluttered") == "true":
+        res.fluttered = True
+    elif v["sim_time_s"] >= v["plateau_start_s"] + v["settle_s"] + v["dwell_s"] - 1e-6:
+        res.points.append(point_from_values(v))
+
+
+def _finite(x: Any) -> float | None:
     return float(x) if isinstance(x, float) and math.isfinite(x) else None
 
 
-def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float,
-           on_point: Callable[[Any, Any], None] | None = None) -> tuple[Any, list[dict[str, Any]], dict[str, float]]:
-    """The client's side, in its own rclpy context (the calling process may have another)."""
+def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float, drive: Drive,
+           on_point: Callable[[Any, Any], None] | None = None) -> None:
+    """The client's side, in its own rclpy context (the calling process may have another); fills ``drive``, also
+    when stopped part-way."""
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -151,11 +200,10 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
     executor = SingleThreadedExecutor(context=ctx)
     client = FlutterTestClient(NAMESPACE, alive=lambda: node.poll() is None, context=ctx)
     executor.add_node(client)
-    timing = {"startup_s": float("nan"), "test_s": float("nan")}
     t0 = time.monotonic()
     try:
         client.wait_for_rig(executor, startup_s)
-        timing["startup_s"] = time.monotonic() - t0
+        drive.startup_s = time.monotonic() - t0
         t1 = time.monotonic()
 
         def next_point(u: float) -> tuple[Any, bool]:
@@ -163,17 +211,18 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
             return pt, fluttered
 
         try:
-            res = run_points(next_point, settings, on_point)
+            run_points(next_point, settings, on_point, drive.res)
         except BaseException:  # Ctrl-C, SIGTERM, a lost node: the wind off first, as an operator stops a test
+            drive.test_s = time.monotonic() - t1
             with contextlib.suppress(Exception):
                 client.command(0.0)
                 client.confirm_setpoint(executor, 0.0)  # seen by the node (and recorded) before it is stopped
             raise
-        timing["test_s"] = time.monotonic() - t1
+        drive.test_s = time.monotonic() - t1
         client.command(0.0)  # the tunnel down, as an operator ends a test
         client.settle_commands(executor)
-        return res, list(client.results), timing
     finally:
+        drive.results = list(client.results)
         executor.remove_node(client)
         client.destroy_node()
         executor.shutdown()

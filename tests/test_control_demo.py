@@ -1,0 +1,87 @@
+"""`panel-rig control-demo`: its summary's numbers, and a demo stopped half-way writing what it measured."""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from panel_rig import jsonio
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_summary_takes_the_diagnostics_as_numbers() -> None:
+    """The node's diagnostics are KeyValues (text): the summary had `"control_commands": "1200"`. Counts are
+    integers, command ages floats, and a 'nan' (no command yet) is null, not a string or NaN."""
+    from panel_rig.control_demo import diagnostics_summary
+
+    d = diagnostics_summary({"control_latency_mean_total_ms": "0.213", "control_latency_p99_total_ms": "nan",
+                             "control_commands": "1200", "rejected_commands": "0", "state": "running"})
+    assert json.loads(jsonio.dumps(d)) == {"latency_mean_total_ms": 0.213, "latency_p99_total_ms": None,
+                                           "rig_state": "running", "control_commands": 1200, "rejected_commands": 0}
+    assert isinstance(d["control_commands"], int) and diagnostics_summary({})["control_commands"] is None
+
+
+def test_onset_summary_interpolates_the_first_zero_crossing_of_the_steps_so_far() -> None:
+    from panel_rig.control_demo import ONSET_FACTORS, onset_summary
+
+    s = onset_summary([-0.5, 0.5], 10.0)
+    assert s["emulated_closed_loop_onset_mps"] == pytest.approx(5 * (ONSET_FACTORS[0] + ONSET_FACTORS[1]))
+    assert s["onset_airspeeds_mps"] == pytest.approx([10 * f for f in ONSET_FACTORS[:2]])
+    none = onset_summary([-0.5], 10.0)  # stopped after the first step: nothing bracketed yet
+    assert none["emulated_closed_loop_onset_mps"] is None and none["onset_growth_rates_per_s"] == [-0.5]
+
+
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
+def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int, status: int) -> None:
+    """Stopped after the quiet check: summary.json with that check, `"interrupted": true`, the bag and the node
+    log; status 130/143; node and controller stopped. Before, nothing was written."""
+    psutil = pytest.importorskip("psutil")
+    pytest.importorskip("rclpy")
+    out, bags = tmp_path / "out", tmp_path / "bags"
+    proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "control-demo", "--json", "--out", str(out),
+                             "--bag-dir", str(bags)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    lines: queue.Queue[str] = queue.Queue()
+    err: list[str] = []
+
+    def read() -> None:  # stderr line by line: the test waits for a line, never for a time
+        for ln in proc.stderr:
+            err.append(ln)
+            lines.put(ln)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        line = ""
+        while not line.startswith("1.2 U_f ="):  # the quiet check measured; the onset steps begin
+            line = lines.get(timeout=240)
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert len(children) >= 2, "no node and controller under the demo"
+        proc.send_signal(sig)
+        proc.wait(timeout=120)
+        printed = json.loads(proc.stdout.read())
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(10)
+    text = "".join(err)
+    assert proc.returncode == status, text[-2000:]
+    _, alive = psutil.wait_procs(children, timeout=30)
+    assert not alive, f"left running: {[p.cmdline()[:4] for p in alive]}"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary == printed and summary["interrupted"] is True
+    assert summary["quiet_tip_rms_m"] > 0 and isinstance(summary["quiet"], bool)
+    assert summary["node_exit"] == 0 and summary["controller_exit"] == 0
+    assert Path(summary["bag"], "metadata.yaml").exists() and Path(summary["node_log"]).exists()
+    assert isinstance(summary["control_commands"], int) and summary["control_commands"] > 0
+    assert isinstance(summary["latency_mean_total_ms"], float)
+    assert f"stopped by {signal.Signals(sig).name}" in text and str(out / "summary.json") in text
