@@ -1,8 +1,11 @@
 """Shared fixtures: the paper's configuration and models built once per session; a private ROS 2 graph."""
 
 import os
+import queue
 import random
-from collections.abc import Iterator
+import subprocess
+import threading
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -30,3 +33,48 @@ def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]
         mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         mp.setenv("ROS_LOG_DIR", str(tmp_path_factory.mktemp("ros_log")))
         yield dict(os.environ)
+
+
+class StderrLines:
+    """A child's stderr read line by line in a thread: a test waits for a line, never for a time."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self._lines: queue.Queue[str] = queue.Queue()
+        self._seen: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
+        self._thread.start()
+
+    def _read(self, proc: subprocess.Popen) -> None:
+        for line in proc.stderr:
+            self._seen.append(line)
+            self._lines.put(line)
+
+    def wait_for(self, prefix: str, timeout_s: float) -> str:
+        """The first line from now on that starts with ``prefix`` (queue.Empty after ``timeout_s`` without a line)."""
+        line = ""
+        while not line.startswith(prefix):
+            line = self._lines.get(timeout=timeout_s)
+        return line
+
+    @property
+    def text(self) -> str:
+        """Everything read so far (all of it once the child has ended and :meth:`close` returned)."""
+        return "".join(self._seen)
+
+    def close(self) -> None:
+        self._thread.join(10)
+
+
+@pytest.fixture
+def stderr_lines() -> Iterator[Callable[[subprocess.Popen], StderrLines]]:
+    """``stderr_lines(proc)``: a :class:`StderrLines` of a child started with ``stderr=subprocess.PIPE, text=True``
+    (its reader is joined at the end of the test)."""
+    readers: list[StderrLines] = []
+
+    def start(proc: subprocess.Popen) -> StderrLines:
+        readers.append(StderrLines(proc))
+        return readers[-1]
+
+    yield start
+    for reader in readers:
+        reader.close()

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import queue
 import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
@@ -40,7 +38,7 @@ def test_onset_summary_interpolates_the_first_zero_crossing_of_the_steps_so_far(
 
 
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
-def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int, status: int) -> None:
+def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int, status: int, stderr_lines) -> None:
     """Stopped after the quiet check: summary.json with that check, `"interrupted": true`, the bag and the node
     log; status 130/143; node and controller stopped. Before, nothing was written."""
     psutil = pytest.importorskip("psutil")
@@ -49,20 +47,9 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "control-demo", "--json", "--out", str(out),
                              "--bag-dir", str(bags)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
-    lines: queue.Queue[str] = queue.Queue()
-    err: list[str] = []
-
-    def read() -> None:  # stderr line by line: the test waits for a line, never for a time
-        for ln in proc.stderr:
-            err.append(ln)
-            lines.put(ln)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    err = stderr_lines(proc)
     try:
-        line = ""
-        while not line.startswith("1.2 U_f ="):  # the quiet check measured; the onset steps begin
-            line = lines.get(timeout=240)
+        err.wait_for("1.2 U_f =", 240)  # the quiet check measured; the onset steps begin
         children = psutil.Process(proc.pid).children(recursive=True)
         assert len(children) >= 2, "no node and controller under the demo"
         proc.send_signal(sig)
@@ -72,8 +59,8 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        reader.join(10)
-    text = "".join(err)
+        err.close()
+    text = err.text
     assert proc.returncode == status, text[-2000:]
     _, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, f"left running: {[p.cmdline()[:4] for p in alive]}"

@@ -196,15 +196,13 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     assert bag.commands["airspeed_cmd"][-1][1] == 0.0, bag.commands["airspeed_cmd"]  # the wind off, recorded
 
 
-def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros_env, tmp_path):
+def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros_env, tmp_path, stderr_lines):
     """Ctrl-C after the first test point (during the second, or just before its command): the JSON of the first
     point, marked interrupted, its plot, the wind off recorded, the node stopped (exit 0), status 130, and a line
     naming the replay of the recording. Before, only the progress lines showed what had been found."""
-    import queue
     import signal
     import subprocess
     import sys
-    import threading
 
     pytest.importorskip("rclpy")
     from panel_rig.recording.series import load_series
@@ -214,20 +212,9 @@ def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros
                              str(START_MPS), "--dwell", str(DWELL_S), "--max-points", "3", "--json", "--bag-dir",
                              str(tmp_path), "--plot", str(tmp_path / "vg.png")], env=ros_env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: queue.Queue[str] = queue.Queue()
-    err: list[str] = []
-
-    def read() -> None:  # stderr line by line: the test waits for a line, never for a time
-        for ln in proc.stderr:
-            err.append(ln)
-            lines.put(ln)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    err = stderr_lines(proc)
     try:
-        line = ""
-        while not line.startswith("point 1:"):  # the first point identified and decided: the second is under way
-            line = lines.get(timeout=240)
+        err.wait_for("point 1:", 240)  # the first point identified and decided: the second is under way
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=120)
         out = json.loads(proc.stdout.read())
@@ -235,8 +222,8 @@ def test_a_flutter_test_stopped_with_ctrl_c_reports_the_points_it_identified(ros
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        reader.join(10)
-    text = "".join(err)
+        err.close()
+    text = err.text
     assert proc.returncode == 130, text[-2000:]
     n = len(out["test_points"])  # 2 only if the second point's whole dwell ended before the signal (~0.7 s wall)
     assert out["interrupted"] is True and out["stop_reason"] == f"interrupted by SIGINT after {n} test point(s)"
