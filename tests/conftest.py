@@ -41,6 +41,7 @@ class StderrLines:
     def __init__(self, proc: subprocess.Popen) -> None:
         self._lines: queue.Queue[str] = queue.Queue()
         self._seen: list[str] = []
+        self._proc = proc
         self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
         self._thread.start()
 
@@ -62,6 +63,10 @@ class StderrLines:
         return "".join(self._seen)
 
     def close(self) -> None:
+        """Kill the child if it still runs (a failed test), and wait for the reader."""
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
         self._thread.join(10)
 
 
