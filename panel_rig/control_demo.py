@@ -201,7 +201,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         "command_age_ms": delay_ms, "loop_delay_ms": delay_s * 1e3, "law": design.law.as_dict(),
         "quiet_airspeed_mps": None, "quiet_tip_rms_m": None, "quiet_threshold_m": None, "quiet": None}
     rates: list[float] = []
-    stopped = None
+    stopped, failure = None, None
     try:
         client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
         summary.update(_quiet_check(client, u_f))
@@ -210,6 +210,8 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
             f"sensor noise {SENSOR_NOISE_M * 1e6:g} um)")  # after the update: a stop now keeps what it says
         _onset_steps(client, pred.speed_mps, rates, log)
         client.send("airspeed_cmd", 0.0)
+    except DemoError as exc:  # e.g. the tunnel did not reach a set-point: what was measured is still written
+        failure = exc
     except (KeyboardInterrupt, SystemExit) as exc:
         stopped = interruption(exc)
         if stopped is None:
@@ -220,7 +222,8 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         ctl_code = stop(ctl, STOP_TIMEOUT_S)
         node_code = stop(node, STOP_TIMEOUT_S)
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
-    summary.update(interrupted=stopped is not None, bag=str(new[-1]) if new else None,
+    summary.update(interrupted=stopped is not None, error=None if failure is None else str(failure),
+                   bag=str(new[-1]) if new else None,
                    rerun=str(rrd) if rrd.exists() else None, node_exit=node_code, controller_exit=ctl_code,
                    node_log=str(node_log), controller_log=str(ctl_log))
     path = out / "summary.json"
@@ -228,6 +231,8 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     if stopped is not None:
         raise Interrupted(stopped, summary, f"stopped by {stopped.name}: what was measured so far is in {path} "
                                             f"(bag {summary['bag']}, node log {node_log})")
+    if failure is not None:
+        raise DemoError(f"{failure}; what was measured so far is in {path} (node log {node_log})")
     return summary
 
 

@@ -69,3 +69,27 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     assert isinstance(summary["control_commands"], int) and summary["control_commands"] > 0
     assert isinstance(summary["latency_mean_total_ms"], float)
     assert f"stopped by {signal.Signals(sig).name}" in text and str(out / "summary.json") in text
+
+
+def test_a_failed_control_demo_writes_what_it_measured(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A demo that fails part-way (a set-point the tunnel does not reach in time: DemoError) wrote no summary.json.
+    Now it does, with the reason under "error", and the message names it; node and controller are stopped."""
+    pytest.importorskip("rclpy")
+    import panel_rig.control_demo as demo
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "0")  # run() joins its own domain: restored after the test
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    reason = "timed out after 60 s waiting for the tunnel at 1.2 U_f"
+
+    def tunnel_never_there(client: object, u_f: float) -> dict:
+        raise demo.DemoError(reason)
+
+    monkeypatch.setattr(demo, "_quiet_check", tunnel_never_there)
+    out = tmp_path / "out"
+    with pytest.raises(demo.DemoError, match=f"{reason}; what was measured so far is in {out / 'summary.json'}"):
+        demo.run(2.0, out, tmp_path / "bags", log=lambda line: None)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["error"] == reason and summary["interrupted"] is False
+    assert summary["node_exit"] == 0 and summary["controller_exit"] == 0
+    assert summary["quiet"] is None and summary["onset_growth_rates_per_s"] == []
+    assert Path(summary["bag"], "metadata.yaml").exists()
