@@ -16,6 +16,7 @@ Starts the rig node (fast mode: the controller runs in lock-step with it, the tr
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import subprocess
@@ -217,10 +218,16 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         if stopped is None:
             raise
     finally:
+        if stopped is not None or failure is not None:  # the wind off first, as the flutter test does (and in
+            with contextlib.suppress(DemoError):  # the bag: the rig's diagnostics show the set-point taken)
+                client.send("airspeed_cmd", 0.0)
+                client.wait(lambda: client.diag.get("airspeed_setpoint_mps") == f"{0.0:.4f}", 5.0, "the wind off")
         summary.update(**onset_summary(rates, pred.speed_mps), **diagnostics_summary(dict(client.diag)))
         client.close()
-        ctl_code = stop(ctl, STOP_TIMEOUT_S)
+        # the node first: the loop stays closed until the rig stops (stopped the other way round, the rig ran on
+        # uncontrolled above the open-loop U_f for a moment, and its bag could end in a flutter onset)
         node_code = stop(node, STOP_TIMEOUT_S)
+        ctl_code = stop(ctl, STOP_TIMEOUT_S)
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
     summary.update(interrupted=stopped is not None, error=None if failure is None else str(failure),
                    bag=str(new[-1]) if new else None,

@@ -69,6 +69,9 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     assert isinstance(summary["control_commands"], int) and summary["control_commands"] > 0
     assert isinstance(summary["latency_mean_total_ms"], float)
     assert f"stopped by {signal.Signals(sig).name}" in text and str(out / "summary.json") in text
+    from panel_rig.recording.series import load_series
+
+    assert load_series(summary["bag"]).commands["airspeed_cmd"][-1][1] == 0.0  # the wind off, recorded
 
 
 def test_a_failed_control_demo_writes_what_it_measured(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
