@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -113,10 +114,16 @@ def test_monitor_series_are_logged_at_every_point_and_the_margin_off_the_mps_axi
     assert [_scalar(r) for r in rows["/flutter/damping_x1000/identified"]] == pytest.approx(
         [1e3 * _point(u).flutter.damping_ratio for u in SPEEDS])
     assert not [e for e in rows if e.startswith("/flutter/predicted_uf_mps/") and "margin" in e]
+    # both predictors' U_f, as the PNG draws them (only the one used was logged)
+    for name, attr in (("damping_trend", "trend"), ("zw", "zw")):
+        crossing = [getattr(d, attr).speed_mps for d in decisions
+                    if getattr(d, attr) is not None and math.isfinite(getattr(d, attr).speed_mps)]
+        assert [_scalar(r) for r in rows.get(f"/flutter/predicted_uf_mps/{name}", [])] == pytest.approx(crossing)
+    assert any(rows.get(f"/flutter/predicted_uf_mps/{n}") for n in ("damping_trend", "zw"))
     static = _static_components(path)
     assert "SeriesPoints:marker_sizes" in static["/flutter/predicted_uf_mps/estimate"]
     views = _views(path)
-    assert views["Flutter monitor: predicted U_f and 95 % interval (m/s)"] == "/flutter/predicted_uf_mps"
+    assert views["Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)"] == "/flutter/predicted_uf_mps"
     assert views["Flutter margin 1 - U/U_f and required (unitless)"] == "/flutter/margin"
 
 

@@ -50,6 +50,8 @@ FLUTTER_STYLES = {
     f"{FLUTTER_UF}/estimate": ("predicted U_f m/s", [214, 39, 40]),
     f"{FLUTTER_UF}/ci_low": ("95 % low m/s", [255, 152, 150]),
     f"{FLUTTER_UF}/ci_high": ("95 % high m/s", [255, 152, 150]),
+    f"{FLUTTER_UF}/damping_trend": ("damping trend U_f m/s", [255, 127, 14]),
+    f"{FLUTTER_UF}/zw": ("ZW flutter margin U_f m/s", [44, 160, 44]),
     f"{FLUTTER_MARGIN}/current": ("margin 1 - U/U_f", [31, 119, 180]),
     f"{FLUTTER_MARGIN}/required": ("required margin", [0, 0, 0]),
     f"{FLUTTER_DAMPING}/identified": ("damping x 1000", [31, 119, 180]),
@@ -88,8 +90,8 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
                    rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)")]
     if "flutter" in views:
         if "flutter_uf" in views:
-            series.append(rrb.TimeSeriesView(origin=FLUTTER_UF,
-                                             name="Flutter monitor: predicted U_f and 95 % interval (m/s)"))
+            series.append(rrb.TimeSeriesView(
+                origin=FLUTTER_UF, name="Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)"))
         series += [
             rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)"),
             rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point"),
@@ -272,9 +274,9 @@ class RerunLogger:
 
     def log_flutter_point(self, time_s: float, points: Any, decision: Any, required_margin: float) -> None:
         """The flutter monitor after a test point, one sample per series at ``time_s``: the predicted U_f with its
-        interval (m/s), the margin and the required one (unitless, own entity), the last point's identified damping
-        (x 1000) with its 95 % interval; and the 2-D view ``flutter_vg`` of every point so far (see
-        :func:`vg_scene`)."""
+        interval (m/s) and each predictor's U_f (damping trend, ZW flutter margin) where it crosses, the margin and
+        the required one (unitless, own entity), the last point's identified damping (x 1000) with its 95 %
+        interval; and the 2-D view ``flutter_vg`` of every point so far (see :func:`vg_scene`)."""
         if self._rec is None:
             return
         rr, rec = self._rr, self._rec
@@ -287,6 +289,9 @@ class RerunLogger:
             margin = float(pred.margin(points[-1].airspeed_mps))
             if np.isfinite(margin):
                 rec.log(f"{FLUTTER_MARGIN}/current", rr.Scalars(margin))
+        for name, each in (("damping_trend", decision.trend), ("zw", decision.zw)):  # both predictors, as the PNG
+            if each is not None and np.isfinite(each.speed_mps):
+                rec.log(f"{FLUTTER_UF}/{name}", rr.Scalars(float(each.speed_mps)))
         rec.log(f"{FLUTTER_MARGIN}/required", rr.Scalars(float(required_margin)))
         e = points[-1].flutter
         if e is not None:
