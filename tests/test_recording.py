@@ -654,3 +654,15 @@ def test_flutter_test_started_twice_in_the_same_second_records_twice(tmp_path: P
             run_in_process(cfg, bag_dir=tmp_path)
     names = sorted(p.name for p in tmp_path.iterdir())
     assert len(names) == 2 and names[0].startswith("flutter_test_") and names[1] == names[0] + "_2"
+
+
+def test_modal_rows_are_cut_to_the_shortest() -> None:
+    """The modal states are read into one flat float array (memory: 8 bytes a number); rows of different lengths
+    (not written by the rig) are cut to the shortest, as the list of rows was."""
+    from panel_rig.recording.series import _ModalRows
+
+    rows = _ModalRows()
+    assert rows.matrix().shape == (0, 0)
+    for position in ([1.0, 2.0, 3.0], [4.0, 5.0], [6.0, 7.0, 8.0, 9.0]):
+        rows.append(position)
+    assert rows.matrix().tolist() == [[1.0, 2.0], [4.0, 5.0], [6.0, 7.0]]

@@ -79,7 +79,9 @@ class McapScan:
     problems: list[Problem] = field(default_factory=list)
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
-    messages: list[Message] = field(default_factory=list)  # from intact chunks and unchunked records
+    messages: list[Message] = field(default_factory=list)  # from intact chunks and unchunked records, if kept
+    message_count: int = 0  # the messages of the intact chunks and unchunked records, kept or not
+    keep_messages: bool = False  # keep them (bag recover writes them out; a check only counts them)
     metadata: list[Metadata] = field(default_factory=list)
     data_end_offset: int | None = None  # where DataEnd was found
     good_end: int = 0  # end of the last intact record of the data section
@@ -136,7 +138,7 @@ class McapScan:
     def summary_line(self) -> str:
         """One line: what is wrong (first problem and how many more)."""
         if self.ok:
-            return f"{self.path}: intact ({len(self.chunks)} chunks, {len(self.messages)} messages)"
+            return f"{self.path}: intact ({len(self.chunks)} chunks, {self.message_count} messages)"
         if not self.problems:
             return f"{self.path}: no summary (writer killed?)"
         more = len(self.problems) - 1
@@ -266,17 +268,21 @@ def _take(scan: McapScan, record: Any) -> None:
     elif isinstance(record, Channel):
         scan.channels.setdefault(record.id, record)
     elif isinstance(record, Message):
-        scan.messages.append(record)
+        scan.message_count += 1
+        if scan.keep_messages:
+            scan.messages.append(record)
     elif isinstance(record, Metadata):
         scan.metadata.append(record)
 
 
 # ------------------------------------------------------------------------------------ the scan
-def scan_mcap(path: Path) -> McapScan:
-    """Walk the whole file (see the module docstring); never raises on content, only on I/O."""
+def scan_mcap(path: Path, keep_messages: bool = False) -> McapScan:
+    """Walk the whole file (see the module docstring); never raises on content, only on I/O. The messages are
+    counted, and kept in ``messages`` only with ``keep_messages`` (a check of a bag held every message of it in
+    memory: 2.4 x the file's size)."""
     path = Path(path)
     size = path.stat().st_size
-    scan = McapScan(path=path, size=size)
+    scan = McapScan(path=path, size=size, keep_messages=keep_messages)
     with open(path, "rb") as f:
         if _read_at(f, 0, len(MAGIC)) != MAGIC:
             scan.problems.append(Problem(0, "not an MCAP file (no magic)"))
@@ -441,7 +447,7 @@ def _check_summary(scan: McapScan, f: io.BufferedReader, footer_pos: int) -> Non
         scan.problems.append(Problem(footer.summary_start,
                                      f"the summary indexes {len(index)} chunks, the file has {len(scan.chunks)}"))
     stats = next((r for r in records if isinstance(r, Statistics)), None)
-    if stats is not None and not scan.bad_chunks and stats.message_count != len(scan.messages):
+    if stats is not None and not scan.bad_chunks and stats.message_count != scan.message_count:
         scan.problems.append(Problem(footer.summary_start, f"the summary counts {stats.message_count} messages, "
-                                                           f"the data section holds {len(scan.messages)}"))
+                                                           f"the data section holds {scan.message_count}"))
     scan.summary_ok = True

@@ -259,7 +259,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         mcap_path, bad_metadata = find_mcap(bag_dir), None
     except MetadataError as exc:
         mcap_path, bad_metadata = single_mcap(bag_dir), exc
-    scan = scan_mcap(mcap_path)
+    scan = scan_mcap(mcap_path, keep_messages=True)
     if not scan.header_ok and not scan.chunks:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
     if bad_metadata is not None:
@@ -270,7 +270,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
     if scan.ok:
         if not (bag_dir / METADATA_FILE).is_file():
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
-        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=len(scan.messages), notes=notes)
+        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=scan.message_count, notes=notes)
     summary = BagSummary(file_name=mcap_path.name)
     tmp = mcap_path.with_name(mcap_path.name + ".recovering")
     try:

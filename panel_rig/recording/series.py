@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -106,9 +107,10 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     length = params.get("panel.length_m")
     ok_length = isinstance(length, (int, float)) and not isinstance(length, bool) and length > 0
     by_name = {v: k for k, v in topics.items() if k != "panel_shape" or shapes}
-    tip: list[tuple[float, float]] = []
-    air: list[tuple[float, float]] = []
-    modal: list[tuple[float, list[float]]] = []
+    # the readings in flat float arrays (8 bytes a number): a list of tuples took ~60 bytes a number, and an hour
+    # at 500 Hz is 1.8 million samples of each topic
+    tip_t, tip_z, air_t, air_u, modal_t = array("d"), array("d"), array("d"), array("d"), array("d")
+    modal = _ModalRows()
     commands: dict[str, list[tuple[float, float]]] = {}
     shape_list: list[tuple[float, np.ndarray, np.ndarray]] = []
     t0_ns: int | None = None
@@ -117,44 +119,70 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
             t0_ns = stamp_ns if stamp_ns > WALL_CLOCK_NS else 0
         kind, t = by_name[topic], (stamp_ns - t0_ns) * 1e-9
         if kind == "tip_displacement":
-            tip.append((t, msg.point.z))
+            tip_t.append(t)
+            tip_z.append(msg.point.z)
         elif kind == "airspeed":
-            air.append((t, msg.vector.x))
+            air_t.append(t)
+            air_u.append(msg.vector.x)
         elif kind == "modal_states":
-            modal.append((t, list(msg.position)))
+            modal_t.append(t)
+            modal.append(msg.position)
         elif kind == "panel_shape":
             shape_list.append((t, np.array([p.x for p in msg.points]), np.array([p.z for p in msg.points])))
         elif math.isfinite(msg.data):
             commands.setdefault(kind, []).append((t, float(msg.data)))
         else:  # a bag from before the /rejected topics: the rig refuses every non-finite command
             refused[topic] = refused.get(topic, 0) + 1
-    if len(tip) < 16:
-        raise RecordingError(f"{bag_dir}: only {len(tip)} tip_displacement samples, too few to analyse")
+    if len(tip_t) < 16:
+        raise RecordingError(f"{bag_dir}: only {len(tip_t)} tip_displacement samples, too few to analyse")
     length_m = float(length) if ok_length else PanelConfig().panel_length_m
-    t_s = np.array([x[0] for x in tip])
-    w = np.array([x[1] for x in tip]) / length_m
+    t_s = np.frombuffer(tip_t, dtype=float).copy()
+    w = np.frombuffer(tip_z, dtype=float) / length_m
     return BagSeries(
-        bag_dir=bag_dir, t_s=t_s, tip_w_over_L=w, airspeed_mps=_interp(t_s, air),
-        q=_modal_on(t_s, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
+        bag_dir=bag_dir, t_s=t_s, tip_w_over_L=w, airspeed_mps=_interp(t_s, air_t, air_u),
+        q=_modal_on(t_s, modal_t, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
         commands=commands, shapes=shape_list, panel_length_m=length_m,
         length_source="parameters" if ok_length else "default", parameters=params, refused_commands=refused,
     )
 
 
-def _interp(t_s: np.ndarray, samples: list[tuple[float, float]]) -> np.ndarray:
-    if not samples:
+class _ModalRows:
+    """The modal_states positions, row after row, in one flat float array; rows of different lengths (not written
+    by the rig) are cut to the shortest, padded with NaN while reading."""
+
+    def __init__(self) -> None:
+        self.values = array("d")
+        self.rows = 0
+        self.width = -1  # the first row's length: the stride of ``values``
+        self.shortest = -1
+
+    def append(self, position: Any) -> None:
+        n = len(position)
+        if self.rows == 0:
+            self.width = self.shortest = n
+        self.values.extend(list(position[: self.width]) + [math.nan] * (self.width - n))
+        self.shortest = min(self.shortest, n)
+        self.rows += 1
+
+    def matrix(self) -> np.ndarray:
+        """(rows, shortest row length)."""
+        if self.rows == 0:
+            return np.zeros((0, 0))
+        return np.frombuffer(self.values, dtype=float).reshape(self.rows, self.width)[:, : self.shortest]
+
+
+def _interp(t_s: np.ndarray, times: array, values: array) -> np.ndarray:
+    if not times:
         return np.full(t_s.size, np.nan)
-    arr = np.asarray(samples, dtype=float)
-    return np.interp(t_s, arr[:, 0], arr[:, 1])
+    return np.interp(t_s, np.frombuffer(times, dtype=float), np.frombuffer(values, dtype=float))
 
 
-def _modal_on(t_s: np.ndarray, modal: list[tuple[float, list[float]]]) -> np.ndarray:
-    n = min((len(q) for _, q in modal), default=0)
-    if n == 0:
+def _modal_on(t_s: np.ndarray, times: array, modal: _ModalRows) -> np.ndarray:
+    q = modal.matrix()
+    if q.shape[1] == 0:
         return np.zeros((t_s.size, 0))
-    times = np.array([m[0] for m in modal])
-    q = np.array([m[1][:n] for m in modal], dtype=float)
-    return np.column_stack([np.interp(t_s, times, q[:, i]) for i in range(n)])
+    times_s = np.frombuffer(times, dtype=float)
+    return np.column_stack([np.interp(t_s, times_s, q[:, i]) for i in range(q.shape[1])])
 
 
 def _hold(t_s: np.ndarray, events: list[tuple[float, float]]) -> np.ndarray:
