@@ -11,9 +11,12 @@ every problem with its chunk index, byte offset and time range (for `analyze` an
 
 from __future__ import annotations
 
+import heapq
 import io
+import itertools
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,9 +82,8 @@ class McapScan:
     problems: list[Problem] = field(default_factory=list)
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
-    messages: list[Message] = field(default_factory=list)  # from intact chunks and unchunked records, if kept
-    message_count: int = 0  # the messages of the intact chunks and unchunked records, kept or not
-    keep_messages: bool = False  # keep them (bag recover writes them out; a check only counts them)
+    message_count: int = 0  # of the intact chunks and the unchunked records (:func:`messages_in_time_order`)
+    loose_messages: list[Message] = field(default_factory=list)  # outside chunks (the rig's writer makes none)
     metadata: list[Metadata] = field(default_factory=list)
     data_end_offset: int | None = None  # where DataEnd was found
     good_end: int = 0  # end of the last intact record of the data section
@@ -262,27 +264,29 @@ def _message_index_counts(raw: bytes) -> tuple[int, int]:
     return channel_id, nbytes // 16
 
 
-def _take(scan: McapScan, record: Any) -> None:
+def _take(scan: McapScan, record: Any, loose: bool = False) -> None:
+    """Note a record: schemas, channels and metadata are kept; messages are counted (and kept only when ``loose``,
+    outside any chunk: a chunk's are read again by :func:`messages_in_time_order`)."""
     if isinstance(record, Schema):
         scan.schemas.setdefault(record.id, record)
     elif isinstance(record, Channel):
         scan.channels.setdefault(record.id, record)
     elif isinstance(record, Message):
         scan.message_count += 1
-        if scan.keep_messages:
-            scan.messages.append(record)
+        if loose:
+            scan.loose_messages.append(record)
     elif isinstance(record, Metadata):
         scan.metadata.append(record)
 
 
 # ------------------------------------------------------------------------------------ the scan
-def scan_mcap(path: Path, keep_messages: bool = False) -> McapScan:
-    """Walk the whole file (see the module docstring); never raises on content, only on I/O. The messages are
-    counted, and kept in ``messages`` only with ``keep_messages`` (a check of a bag held every message of it in
-    memory: 2.4 x the file's size)."""
+def scan_mcap(path: Path) -> McapScan:
+    """Walk the whole file (see the module docstring); never raises on content, only on I/O. The messages of
+    the chunks are counted, not held (holding them took 2.4 x the file's size in memory); read them with
+    :func:`messages_in_time_order`."""
     path = Path(path)
     size = path.stat().st_size
-    scan = McapScan(path=path, size=size, keep_messages=keep_messages)
+    scan = McapScan(path=path, size=size)
     with open(path, "rb") as f:
         if _read_at(f, 0, len(MAGIC)) != MAGIC:
             scan.problems.append(Problem(0, "not an MCAP file (no magic)"))
@@ -300,6 +304,26 @@ def scan_mcap(path: Path, keep_messages: bool = False) -> McapScan:
             _check_data_crc(scan, f)
     scan.problems.sort(key=lambda p: p.offset)
     return scan
+
+
+def messages_in_time_order(scan: McapScan) -> Iterator[Message]:
+    """The messages of the scan's intact chunks and its unchunked ones, in log-time order (file order among equal
+    times within a chunk), read chunk by chunk from the file again: only the chunks that overlap in time are held
+    at once. A chunk that no longer verifies (the file changed since the scan) is left out."""
+    chunks = sorted((c for c in scan.chunks if c.ok), key=lambda c: (c.start_ns, c.offset))
+    order = itertools.count()
+    pending = [(m.log_time, next(order), m) for m in scan.loose_messages]
+    heapq.heapify(pending)
+    with open(scan.path, "rb") as f:
+        for chunk in chunks:
+            while pending and pending[0][0] < chunk.start_ns:
+                yield heapq.heappop(pending)[2]
+            _, records, problem = _parse_chunk(_read_at(f, chunk.offset, chunk.length))
+            for r in records if not problem else ():
+                if isinstance(r, Message):
+                    heapq.heappush(pending, (r.log_time, next(order), r))
+    while pending:
+        yield heapq.heappop(pending)[2]
 
 
 _NEXT_OPCODES = (OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END, 0x03, 0x04, 0x09, 0x0C)  # what may follow a chunk
@@ -382,7 +406,7 @@ def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int) -> None:
                 if isinstance(record, Header):
                     scan.header_ok, scan.profile = True, record.profile
                 else:
-                    _take(scan, record)
+                    _take(scan, record, loose=True)
                 scan.good_end = end
         pos = end
     if scan.data_end_offset is None and not scan.truncated:

@@ -27,7 +27,7 @@ from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
 from panel_rig.recording.errors import BagInUseError, MetadataError, RecordingError
-from panel_rig.recording.integrity import McapScan, scan_mcap
+from panel_rig.recording.integrity import McapScan, messages_in_time_order, scan_mcap
 from panel_rig.recording.lock import BagLock, lock_holder
 from panel_rig.recording.metadata import (
     METADATA_FILE,
@@ -129,7 +129,7 @@ def _write_recovered(scan: McapScan, out_path: Path, summary: BagSummary) -> tup
                 except ValueError:  # damaged beyond what a CRC covers: keep the record, skip the copy
                     continue
                 summary.custom_data[PARAMETERS_KEY] = json.dumps(params, sort_keys=True)
-        for msg in sorted(scan.messages, key=lambda m: m.log_time):
+        for msg in messages_in_time_order(scan):  # chunk by chunk: a long bag is not held in memory
             target = channel_ids.get(msg.channel_id)
             if target is None:
                 skipped += 1
@@ -259,7 +259,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         mcap_path, bad_metadata = find_mcap(bag_dir), None
     except MetadataError as exc:
         mcap_path, bad_metadata = single_mcap(bag_dir), exc
-    scan = scan_mcap(mcap_path, keep_messages=True)
+    scan = scan_mcap(mcap_path)
     if not scan.header_ok and not scan.chunks:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
     if bad_metadata is not None:
@@ -314,7 +314,7 @@ def _summary_from_scan(scan: McapScan, file_name: str) -> BagSummary:
         if schema is not None:
             infos[cid] = _topic_info(channel, schema)
             summary.topics.append(infos[cid])
-    for msg in scan.messages:
+    for msg in messages_in_time_order(scan):
         if msg.channel_id in infos:
             infos[msg.channel_id].message_count += 1
             summary.note_stamp(msg.log_time)
