@@ -221,14 +221,19 @@ def format_table(result: dict[str, Any]) -> str:
     def num(x: float | None) -> str:
         return "-" if x is None else f"{x:.2f}"
 
+    # an estimate that could not be made says why ("- m/s" read as a figure lost)
+    extrapolated = (f"{num(o['extrapolated_mps'])} m/s" if o["extrapolated_mps"] is not None
+                    else "none (the rates do not rise towards 0)" if len(o["extrapolation_points"]) >= 2
+                    else "none (needs two plateaus with a measured decay)")
+    interpolated = (f"{num(o['interpolated_mps'])} m/s" if o["interpolated_mps"] is not None
+                    else "none (needs a measured growth at the bracket's top and a decay at its bottom)")
     if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
         lines.append("flutter onset: no plateau was unstable"
                      + ("" if o["bracket_low_mps"] is None else f" (stable up to {num(o['bracket_low_mps'])} m/s)")
-                     + f"; extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s")
+                     + f"; extrapolated from decay rates: {extrapolated}")
     else:
         lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
-                     f"extrapolated from decay rates: {num(o['extrapolated_mps'])} m/s; "
-                     f"interpolated across the bracket: {num(o['interpolated_mps'])} m/s")
+                     f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
     ft = result.get("flutter_test")
     if ft and ft["test_points"]:
         lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")

@@ -578,3 +578,28 @@ def test_a_replay_without_a_prediction_says_why_not_none() -> None:
     with_one = format_flutter_test({**run, "predicted_flutter_speed_mps": 10.4, "prediction_method": "damping-trend",
                                     "predicted_flutter_speed_ci_mps": [10.1, None]})
     assert "predicted U_f 10.400 m/s (95 % 10.100 .. open) [damping-trend]; model linear U_f 10.480 m/s" in with_one
+
+
+def test_onset_estimates_that_could_not_be_made_say_why() -> None:
+    """`make run`'s table said "extrapolated from decay rates: - m/s; interpolated across the bracket: - m/s"
+    (the turbulence-driven decay rates fell with airspeed; the bracket's top was an LCO): read as figures lost."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+    from panel_rig.analyze_cli import format_table
+
+    def plateau(i: int, u: float, rate: float, status: str) -> dict:
+        return {"index": i, "t_start_s": 10.0 * i, "t_end_s": 10.0 * i + 9, "airspeed_mps": u,
+                "rms_tip_w_over_L": 1e-4, "peak_tip_w_over_L": 3e-4, "dominant_frequency_hz": 22.0,
+                "growth_rate_per_s": rate, "status": status}
+
+    ps = [plateau(1, 8.0, -0.14, "decaying"), plateau(2, 10.0, -0.25, "decaying"), plateau(3, 11.2, 0.09, "lco")]
+    result = {"bag": "b", "duration_s": 40.0, "samples": 20000, "panel_length_m": 0.27,
+              "panel_length_source": "bag", "plateaus": ps, "onset": estimate_onset(ps)}
+    onset = next(ln for ln in format_table(result).splitlines() if ln.startswith("flutter onset"))
+    assert onset == ("flutter onset bracket: 10.00 .. 11.20 m/s; extrapolated from decay rates: none (the rates do "
+                     "not rise towards 0); interpolated across the bracket: none (needs a measured growth at the "
+                     "bracket's top and a decay at its bottom)")
+    one = [ps[1], plateau(3, 11.2, 0.5, "growing")]
+    onset = next(ln for ln in format_table({**result, "plateaus": one, "onset": estimate_onset(one)}).splitlines()
+                 if ln.startswith("flutter onset"))
+    assert "extrapolated from decay rates: none (needs two plateaus with a measured decay)" in onset
+    assert "interpolated across the bracket: 10.40 m/s" in onset  # 10 + 0.25 x 1.2 / 0.75
