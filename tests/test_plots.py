@@ -185,3 +185,19 @@ def test_lco_vs_airspeed_of_a_subcritical_run_says_why_its_frequency_panel_is_em
     assert any("no LCO frequency" in t.get_text() for t in ax2.texts)
     plots.plot_lco_vs_airspeed(tmp_path / "b.png", [*quiet, {**quiet[0], "airspeed_mps": 11.0, "status": "lco"}])
     assert not figures[1].axes[1].texts and figures[1].axes[1].lines
+
+
+def test_time_history_status_labels_sit_below_the_airspeed_curve(tmp_path, monkeypatch):
+    """The demo's time history wrote each plateau's status at the airspeed panel's bottom, on the curve where the
+    wind was off (0 m/s). The labels sit in a band below 0 m/s now."""
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path))[1])
+    t = np.linspace(0.0, 30.0, 3001)
+    u = np.where(t < 20.0, 10.0, 0.0)
+    plots.plot_time_history(tmp_path / "th.png", t, 1e-3 * np.sin(t), u,
+                            [(2.0, 18.0, "decaying"), (22.0, 30.0, "decaying")])
+    ax2 = figures[0].axes[1]
+    for text in ax2.texts:
+        bottom, top = ax2.transData.inverted().transform(text.get_window_extent().get_points())[:, 1]
+        assert top < 0.0, (text.get_text(), bottom, top)  # below every airspeed the run had

@@ -116,10 +116,14 @@ def plot_time_history(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarra
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, height_ratios=[2, 1])
     ax1.plot(t_s, tip_w_over_L, lw=0.5, color="C0")
     ax2.plot(t_s, airspeed_mps, lw=1.2, color="C2")
+    u_max = float(np.nanmax(airspeed_mps)) if np.any(np.isfinite(airspeed_mps)) else 0.0
+    if spans:  # a band below 0 m/s for the status labels: on the curve's level they sat on it (wind off, at 0)
+        ax2.set_ylim(-0.3 * max(u_max, 1.0), 1.08 * max(u_max, 1.0))
     for t0, t1, status in spans:
         for ax in (ax1, ax2):
             ax.axvspan(t0, t1, color=_STATUS_STYLE.get(status, ("0.6", ""))[0], alpha=0.12, lw=0)
-        ax2.annotate(status, ((t0 + t1) / 2, ax2.get_ylim()[0]), ha="center", va="bottom", fontsize=7)
+        ax2.annotate(status, ((t0 + t1) / 2, 0.02), xycoords=ax2.get_xaxis_transform(), ha="center", va="bottom",
+                     fontsize=7)
     ax1.set(ylabel="tip w/L", title="Time history (shaded: airspeed plateaus)")
     ax2.set(xlabel="time, s", ylabel="airspeed, m/s")
     for ax in (ax1, ax2):
