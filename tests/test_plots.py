@@ -201,3 +201,16 @@ def test_time_history_status_labels_sit_below_the_airspeed_curve(tmp_path, monke
     for text in ax2.texts:
         bottom, top = ax2.transData.inverted().transform(text.get_window_extent().get_points())[:, 1]
         assert top < 0.0, (text.get_text(), bottom, top)  # below every airspeed the run had
+
+
+def test_spectrogram_has_its_colour_scale(tmp_path, monkeypatch):
+    """The spectrogram's colours had no scale: a colour bar in dB now, the airspeed axis still beside the plot."""
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path))[1])
+    t = np.arange(0.0, 20.0, 1 / 200)
+    plots.plot_spectrogram(tmp_path / "sg.png", t, 1e-3 * np.sin(2 * np.pi * 22 * t), np.full(t.size, 10.0))
+    labels = [ax.get_ylabel() for ax in figures[0].axes]
+    assert any(label.startswith("PSD of tip w/L, dB") for label in labels), labels
+    spec, speed = figures[0].axes[0], next(ax for ax in figures[0].axes if ax.get_ylabel().startswith("airspeed"))
+    assert speed.get_position().bounds == pytest.approx(spec.get_position().bounds)  # the twin on the plot

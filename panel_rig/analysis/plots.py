@@ -140,10 +140,12 @@ def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray
     fig, ax = plt.subplots(figsize=(9, 4.5))
     x = np.asarray(tip_w_over_L, float) - np.mean(tip_w_over_L)
     with np.errstate(divide="ignore"):  # silent stretches (rig at rest) are -inf dB
-        ax.specgram(x, NFFT=nfft, Fs=1.0 / dt, noverlap=nfft // 2, xextent=(t_s[0], t_s[-1]), cmap="viridis",
-                    scale="dB")
+        image = ax.specgram(x, NFFT=nfft, Fs=1.0 / dt, noverlap=nfft // 2, xextent=(t_s[0], t_s[-1]),
+                            cmap="viridis", scale="dB")[3]
     ax.set(xlabel="time, s", ylabel="frequency, Hz", ylim=(0, min(f_max_hz, 0.5 / dt)),
            title=f"Spectrogram of tip w/L ({nfft * dt:.2f} s windows)")
+    # the colour scale, before the twin axis is made (it then takes the plot's narrowed place)
+    fig.colorbar(image, ax=ax, pad=0.11, label="PSD of tip w/L, dB re 1 (w/L)^2/Hz")
     ax2 = ax.twinx()
     ax2.plot(t_s, airspeed_mps, color="w", lw=1.2)
     ax2.set_ylabel("airspeed, m/s (white)")
