@@ -33,12 +33,15 @@ from panel_rig.config import number_if_text
 from panel_rig.paths import make_output_dir
 from panel_rig.processes import (
     Interrupted,
+    StopRequest,
     interruption,
     module_command,
     private_domain_id,
+    signals_set,
     sigterm_exits,
     spawn,
     stop,
+    stop_exception,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,6 +90,7 @@ class _Client:
         self.node.create_subscription(Vector3Stamped, "airspeed", self._on_air, qos_profile_sensor_data)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, rel)
         self.pubs = {t: self.node.create_publisher(Float64, t, rel) for t in ("airspeed_cmd", "shaker/force_cmd")}
+        self.stop: StopRequest | None = None  # set by a signal: the waits end between rclpy calls
 
     def _on_air(self, m: Any) -> None:
         self.airspeed = m.vector.x
@@ -99,6 +103,8 @@ class _Client:
     def wait(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
         while not cond():
+            if self.stop is not None and self.stop.is_set():
+                raise stop_exception(self.stop)
             if time.monotonic() > deadline:
                 raise DemoError(f"timed out after {timeout_s:g} s waiting for {what}")
             self.ex.spin_once(timeout_sec=0.02)
@@ -196,6 +202,10 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     client = _Client(int(env["ROS_DOMAIN_ID"]))
+    # from here a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between
+    # rclpy calls: raised inside rclpy's conversion of a taken sample it became a RuntimeError, and the demo died
+    # without its summary (seen on a loaded machine)
+    client.stop = stop_request = StopRequest()
     # filled as it is measured: an interrupted demo writes what it has
     summary: dict[str, Any] = {
         "interrupted": False, "open_loop_flutter_speed_mps": u_f, "closed_loop_flutter_speed_mps": pred.speed_mps,
@@ -203,31 +213,33 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
         "quiet_airspeed_mps": None, "quiet_tip_rms_m": None, "quiet_threshold_m": None, "quiet": None}
     rates: list[float] = []
     stopped, failure = None, None
-    try:
-        client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
-        summary.update(_quiet_check(client, u_f))
-        log(f"1.2 U_f = {summary['quiet_airspeed_mps']:.2f} m/s: tip RMS {summary['quiet_tip_rms_m'] * 1e6:.2f} um "
-            f"over t_tap + 4..6 s (quiet below {summary['quiet_threshold_m'] * 1e6:.0f} um = {QUIET_FACTOR:g} x "
-            f"sensor noise {SENSOR_NOISE_M * 1e6:g} um)")  # after the update: a stop now keeps what it says
-        _onset_steps(client, pred.speed_mps, rates, log)
-        client.send("airspeed_cmd", 0.0)
-    except DemoError as exc:  # e.g. the tunnel did not reach a set-point: what was measured is still written
-        failure = exc
-    except (KeyboardInterrupt, SystemExit) as exc:
-        stopped = interruption(exc)
-        if stopped is None:
-            raise
-    finally:
-        if stopped is not None or failure is not None:  # the wind off first, as the flutter test does (and in
-            with contextlib.suppress(DemoError):  # the bag: the rig's diagnostics show the set-point taken)
-                client.send("airspeed_cmd", 0.0)
-                client.wait(lambda: client.diag.get("airspeed_setpoint_mps") == f"{0.0:.4f}", 5.0, "the wind off")
-        summary.update(**onset_summary(rates, pred.speed_mps), **diagnostics_summary(dict(client.diag)))
-        client.close()
-        # the node first: the loop stays closed until the rig stops (stopped the other way round, the rig ran on
-        # uncontrolled above the open-loop U_f for a moment, and its bag could end in a flutter onset)
-        node_code = stop(node, STOP_TIMEOUT_S)
-        ctl_code = stop(ctl, STOP_TIMEOUT_S)
+    with signals_set(stop_request):
+        try:
+            client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
+            summary.update(_quiet_check(client, u_f))
+            log(f"1.2 U_f = {summary['quiet_airspeed_mps']:.2f} m/s: tip RMS {summary['quiet_tip_rms_m'] * 1e6:.2f} um "
+                f"over t_tap + 4..6 s (quiet below {summary['quiet_threshold_m'] * 1e6:.0f} um = {QUIET_FACTOR:g} x "
+                f"sensor noise {SENSOR_NOISE_M * 1e6:g} um)")  # after the update: a stop now keeps what it says
+            _onset_steps(client, pred.speed_mps, rates, log)
+            client.send("airspeed_cmd", 0.0)
+        except DemoError as exc:  # e.g. the tunnel did not reach a set-point: what was measured is still written
+            failure = exc
+        except (KeyboardInterrupt, SystemExit) as exc:
+            stopped = interruption(exc)
+            if stopped is None:
+                raise
+        finally:
+            client.stop = None  # the wind-off and the stops run to their end: a second signal only sets the flag
+            if stopped is not None or failure is not None:  # the wind off first, as the flutter test does (and in
+                with contextlib.suppress(DemoError):  # the bag: the rig's diagnostics show the set-point taken)
+                    client.send("airspeed_cmd", 0.0)
+                    client.wait(lambda: client.diag.get("airspeed_setpoint_mps") == f"{0.0:.4f}", 5.0, "the wind off")
+            summary.update(**onset_summary(rates, pred.speed_mps), **diagnostics_summary(dict(client.diag)))
+            client.close()
+            # the node first: the loop stays closed until the rig stops (stopped the other way round, the rig ran on
+            # uncontrolled above the open-loop U_f for a moment, and its bag could end in a flutter onset)
+            node_code = stop(node, STOP_TIMEOUT_S)
+            ctl_code = stop(ctl, STOP_TIMEOUT_S)
     new = sorted(p for p in bag_dir.glob("rig_*") if p.name not in before and p.is_dir())
     summary.update(interrupted=stopped is not None, error=None if failure is None else str(failure),
                    bag=str(new[-1]) if new else None,

@@ -119,6 +119,12 @@ class StopRequest(threading.Event):
         return 128 + (self.signum if self.signum is not None else signal.SIGINT)
 
 
+def stop_exception(stop: StopRequest) -> BaseException:
+    """What a stop request stands for, to raise between rclpy calls: KeyboardInterrupt (Ctrl-C), or for SIGTERM
+    the SystemExit of :func:`sigterm_exits` (:func:`interruption` maps both back to their signal)."""
+    return SystemExit(TERMINATED_STATUS) if stop.signum == signal.SIGTERM else KeyboardInterrupt()
+
+
 @contextmanager
 def signals_set(stop: threading.Event) -> Iterator[None]:
     """Within the block SIGINT and SIGTERM only set ``stop``: the spin loop turns it into a clean exit between

@@ -54,10 +54,12 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
         assert len(children) >= 2, "no node and controller under the demo"
         proc.send_signal(sig)
         proc.wait(timeout=120)
-        printed = json.loads(proc.stdout.read())
+        stdout = proc.stdout.read()
     finally:
         err.close()
     text = err.text
+    assert stdout.strip(), f"status {proc.returncode}, nothing on stdout; stderr:\n{text[-3000:]}"
+    printed = json.loads(stdout)
     assert proc.returncode == status, text[-2000:]
     _, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, f"left running: {[p.cmdline()[:4] for p in alive]}"
