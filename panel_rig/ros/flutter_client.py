@@ -20,6 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from panel_rig.analysis.flutter_test import TestPoint
+from panel_rig.processes import StopRequest, stop_exception
 from panel_rig.ros.flutter_monitor import STATUS_NAME, TOPIC, parse_monitor, point_from_values
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -45,6 +46,7 @@ class FlutterTestClient(Node):
         super().__init__("panel_rig_flutter_test", namespace=namespace, **kwargs)
         self.timeout_s = timeout_s
         self.alive = alive or (lambda: True)
+        self.stop: StopRequest | None = None  # set by a signal: the test's waits end between rclpy calls
         self.pub_airspeed = self.create_publisher(Float64, "airspeed_cmd", COMMAND_QOS)
         self.results: list[dict[str, Any]] = []
         self.diagnostics: dict[str, str] = {}
@@ -72,6 +74,8 @@ class FlutterTestClient(Node):
 
     def _spin(self, executor: Any, timeout_s: float = 0.05) -> None:
         executor.spin_once(timeout_sec=timeout_s)
+        if self.stop is not None and self.stop.is_set():
+            raise stop_exception(self.stop)
         if not self.alive():
             raise RigGone("the rig node exited")
         self._check_alone()

@@ -18,10 +18,11 @@ import yaml
 
 from panel_rig.processes import (
     Interrupted,
+    StopRequest,
     interruption,
     module_command,
     private_domain_id,
-    sigterm_exits,
+    signals_set,
     spawn,
     stop,
 )
@@ -115,8 +116,12 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
 
     stopped = None
     try:
-        with sigterm_exits():  # a killed test must not leave its node running
-            _drive(node, did, settings, startup_s, drive, on_point)
+        # a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between rclpy
+        # calls (raised inside rclpy's conversion of a taken sample it became a RuntimeError): the wind off, the
+        # node stopped, the points so far reported
+        stop_request = StopRequest()
+        with signals_set(stop_request):
+            _drive(node, did, settings, startup_s, drive, on_point, stop_request)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
     except (KeyboardInterrupt, SystemExit) as exc:
@@ -177,7 +182,7 @@ def _finite(x: Any) -> float | None:
 
 
 def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float, drive: Drive,
-           on_point: Callable[[Any, Any], None] | None = None) -> None:
+           on_point: Callable[[Any, Any], None] | None = None, stop_request: StopRequest | None = None) -> None:
     """The client's side, in its own rclpy context (the calling process may have another); fills ``drive``, also
     when stopped part-way."""
     import rclpy
@@ -199,6 +204,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = saved
     executor = SingleThreadedExecutor(context=ctx)
     client = FlutterTestClient(NAMESPACE, alive=lambda: node.poll() is None, context=ctx)
+    client.stop = stop_request
     executor.add_node(client)
     t0 = time.monotonic()
     try:
