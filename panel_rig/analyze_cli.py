@@ -60,12 +60,6 @@ class FlutterTestReplay(NamedTuple):
     mode: int
 
 
-def replay_flutter_test(rec: Any) -> dict[str, Any] | None:
-    """The flutter-test replay's JSON part (see :func:`_replay`)."""
-    replay = _replay(rec)
-    return replay.payload if replay else None
-
-
 def _replay(rec: Any) -> FlutterTestReplay | None:
     """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
     per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
