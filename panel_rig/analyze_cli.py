@@ -131,6 +131,7 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     decisions = _replay_decisions(ft_points, rec.parameters)
     views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (
         ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
+        ("flutter_zw",) if any(p.first is not None and p.flutter is not None for p in ft_points) else ()) + (
         ("analysis",) if result.get("plateaus") else ())
     logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views)
     try:

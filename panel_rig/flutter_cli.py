@@ -182,7 +182,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         from panel_rig.viz import RerunLogger
 
         viz = RerunLogger(len(np.atleast_1d(st.q)), mode="save", target=rerun, recording_name="flutter_test",
-                          views=("flutter", "flutter_uf"))
+                          views=("flutter", "flutter_uf", "flutter_zw"))
         sinks.append(viz)
     rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), sinks=sinks,
               **tunnel_extras(cfg, st))

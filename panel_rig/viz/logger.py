@@ -30,11 +30,13 @@ CONTROL_AGE = "control/latency_ms"
 FLUTTER_UF = "flutter/predicted_uf_mps"
 FLUTTER_MARGIN = "flutter/margin"
 FLUTTER_DAMPING = "flutter/damping_x1000"
+# the Zimmerman-Weissenburger flutter margin F of each point with both modes identified, Hz^4 (flutter at F = 0)
+FLUTTER_ZW = "flutter/zw_margin_hz4"
 FLUTTER_VG = "flutter_vg"
 # an analysis of a recording (`panel-rig analyze --rerun`): plateau status and the flutter onset as text logs
 ANALYSIS = "analysis"
 #: the optional views; a recording's blueprint shows only those it has data for
-OPTIONAL_VIEWS = ("control", "flutter", "flutter_uf", "analysis")
+OPTIONAL_VIEWS = ("control", "flutter", "flutter_uf", "flutter_zw", "analysis")
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
 #: how long close() waits for the last data to reach the viewer or the .rrd file (s)
 FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
@@ -57,6 +59,7 @@ FLUTTER_STYLES = {
     f"{FLUTTER_DAMPING}/identified": ("damping x 1000", [31, 119, 180]),
     f"{FLUTTER_DAMPING}/ci_low": ("95 % low", [174, 199, 232]),
     f"{FLUTTER_DAMPING}/ci_high": ("95 % high", [174, 199, 232]),
+    f"{FLUTTER_ZW}/point": ("ZW flutter margin F Hz^4", [44, 160, 44]),
 }
 
 
@@ -72,7 +75,8 @@ def modal_entity(i: int) -> str:
 def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
     """Default layout: tip, modal, airspeed+shaker time series, the panel shape in 3-D, and of
     `OPTIONAL_VIEWS` those in ``views``: control command and age, the flutter monitor (margin, damping vs time
-    and damping vs airspeed), its predicted U_f (there only once a prediction is made), the analysis text log."""
+    and damping vs airspeed), its predicted U_f (there only once a prediction is made), its ZW flutter margin per
+    point (points with both modes identified), the analysis text log."""
     import rerun.blueprint as rrb
 
     unknown = set(views) - set(OPTIONAL_VIEWS)
@@ -96,6 +100,9 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
             rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)"),
             rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point"),
         ]
+        if "flutter_zw" in views:
+            series.append(rrb.TimeSeriesView(
+                origin=FLUTTER_ZW, name="ZW flutter margin F per point (Hz^4; flutter where it reaches 0)"))
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
     eye = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital, position=[0.35, -2.5, 0.3], look_target=[0.35, 0.0, 0.0],
@@ -276,7 +283,8 @@ class RerunLogger:
         """The flutter monitor after a test point, one sample per series at ``time_s``: the predicted U_f with its
         interval (m/s) and each predictor's U_f (damping trend, ZW flutter margin) where it crosses, the margin and
         the required one (unitless, own entity), the last point's identified damping (x 1000) with its 95 %
-        interval; and the 2-D view ``flutter_vg`` of every point so far (see :func:`vg_scene`)."""
+        interval and its ZW flutter margin F (Hz^4, when both its modes are identified; the PNG's ZW panel); and
+        the 2-D view ``flutter_vg`` of every point so far (see :func:`vg_scene`)."""
         if self._rec is None:
             return
         rr, rec = self._rr, self._rec
@@ -297,6 +305,12 @@ class RerunLogger:
         if e is not None:
             for name, v in zip(("identified", "ci_low", "ci_high"), (e.damping_ratio, *e.damping_ci())):
                 rec.log(f"{FLUTTER_DAMPING}/{name}", rr.Scalars(1e3 * float(v)))
+        if points[-1].first is not None and e is not None:
+            from panel_rig.analysis.flutter_margin import flutter_margins
+
+            f_hz4 = float(flutter_margins([points[-1].first], [e])[0]) / (2 * np.pi) ** 4
+            if np.isfinite(f_hz4):
+                rec.log(f"{FLUTTER_ZW}/point", rr.Scalars(f_hz4))
         from panel_rig.analysis.flutter_test import trend_curve
 
         uf = float(pred.speed_mps) if pred is not None and np.isfinite(pred.speed_mps) else None
