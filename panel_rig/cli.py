@@ -572,8 +572,19 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+def package_version() -> str:
+    """The installed distribution's version (setup.py, package.xml), or "unknown" when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("panel_rig")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="panel-rig", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"panel-rig {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     linear_variant_help = ("structural variant, linearised at rest (default %(default)s); " + LINEAR_NOTE

@@ -36,3 +36,18 @@ def test_colcon_lists_the_package_as_ament_python(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr[-2000:]
     rows = [line.split() for line in out.stdout.splitlines() if line.strip()]
     assert ["panel_rig", "src/panel_rig", "(ros.ament_python)"] in rows, out.stdout
+
+
+def test_version_is_one_number_in_setup_package_xml_and_the_cli(capsys: pytest.CaptureFixture[str]) -> None:
+    """`panel-rig --version` failed ("the following arguments are required: command"); it prints the installed
+    version, which is package.xml's (colcon and pip read the two files separately)."""
+    import re
+
+    from panel_rig.cli import main
+
+    xml = re.search(r"<version>([^<]+)</version>", (ROOT / "package.xml").read_text()).group(1)
+    setup = re.search(r'version="([^"]+)"', (ROOT / "setup.py").read_text()).group(1)
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.strip() == f"panel-rig {xml}" and setup == xml
