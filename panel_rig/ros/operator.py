@@ -63,6 +63,13 @@ class Step:
     arg: Any = None
 
     def describe(self) -> str:
+        """The step as the summary's row names it: the profile's key and value (a shaker or a ramp in words)."""
+        if self.kind == "shaker":
+            parts = [f"{self.arg['amplitude']:g} N/m" if "amplitude" in self.arg else "",
+                     f"{self.arg['frequency_hz']:g} Hz" if "frequency_hz" in self.arg else ""]
+            return "shaker " + " at ".join(x for x in parts if x)
+        if self.kind == "ramp":
+            return f"ramp to {self.arg['to']:g} m/s at {self.arg['rate_mps2']:g} m/s^2"
         return self.kind if self.arg is None else f"{self.kind} {self.arg}"
 
 
@@ -373,6 +380,11 @@ def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) ->
                 s.note = "rejected (rig aborted; reset to go on)"
 
 
+#: under the table when a step with a tip RMS has no frequency
+NO_FREQUENCY_NOTE = ("f_Hz -: too few readings or zero crossings arrived for a frequency (readings are best effort; "
+                     "in fast mode a subscriber misses many); the bag's analysis has every reading")
+
+
 def format_summary(summary: Sequence[StepSummary]) -> str:
     """A plain table: per step rig time, commanded/measured airspeed, tip RMS (mm) and frequency."""
     lines = [f"{'#':>3} {'step':<34} {'t_end_s':>8} {'U_cmd':>6} {'U_meas':>6} {'tip_rms_mm':>10} {'f_Hz':>6}"]
@@ -386,6 +398,8 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
             f"{num(s.measured_mps, 6, 2)} {num(s.tip_rms_m * 1e3, 10, 3)} {num(s.tip_freq_hz, 6, 2)}"
             + (f"  {s.note}" if s.note else "")
         )
+    if any(math.isfinite(s.tip_rms_m) and not math.isfinite(s.tip_freq_hz) for s in summary):
+        lines.append(NO_FREQUENCY_NOTE)
     return "\n".join(lines)
 
 
