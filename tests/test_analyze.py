@@ -463,6 +463,35 @@ def test_onset_interpolates_only_from_a_measured_decay() -> None:
     assert decaying["interpolated_mps"] == pytest.approx(10.25)
 
 
+def test_an_lco_plateau_gives_the_growth_before_it_saturated_to_the_onset_interpolation() -> None:
+    """`make run`'s onset read "interpolated across the bracket: none": the turbulence grew the flutter into an LCO
+    within the 11.2 m/s plateau, and only a plateau still "growing" gave a rate. The LCO plateau's growth below
+    0.2 of its final envelope is the linear growth rate (here 0.5 1/s, within 5 %); an LCO carried over from an
+    earlier plateau has none, and a "quiet" or absent rate interpolates nothing."""
+    from panel_rig.analysis.bag_analysis import analyze_plateau, estimate_onset
+
+    dt, n = 1.0 / 500.0, 15000  # 30 s at 500 Hz
+    t = np.arange(n) * dt
+    u = np.full(n, 11.2)
+    rng = np.random.default_rng(3)
+    a_lco, a0, sigma = 0.35, 0.35 * 0.01, 0.5
+    amplitude = a_lco / np.sqrt(1 + (a_lco**2 / a0**2 - 1) * np.exp(-2 * sigma * t))  # logistic: exp, then LCO
+    w = amplitude * np.sin(2 * np.pi * 17.0 * t) + 1e-5 * rng.normal(size=n)
+    grown = analyze_plateau(t, w, u, {}, 0, n)
+    assert grown["status"] == "lco" and grown["onset_growth_rate_per_s"] == pytest.approx(sigma, rel=0.05)
+    carried = analyze_plateau(t, a_lco * np.sin(2 * np.pi * 17.0 * t), u, {}, 0, n)
+    assert carried["status"] == "lco" and carried["onset_growth_rate_per_s"] is None
+
+    def p(u_mps, status, t0, rate, onset=None):
+        return {"airspeed_mps": u_mps, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0,
+                "growth_rate_per_s": rate, "onset_growth_rate_per_s": onset}
+
+    lco = p(11.2, "lco", 10, 0.08, onset=0.5)
+    assert estimate_onset([p(10.0, "decaying", 0, -0.25), lco])["interpolated_mps"] == pytest.approx(10.4)
+    assert estimate_onset([p(10.0, "decaying", 0, -0.25), p(11.2, "lco", 10, 0.08)])["interpolated_mps"] is None
+    assert estimate_onset([p(10.0, "quiet", 0, -0.25), lco])["interpolated_mps"] is None
+
+
 def test_random_response_in_turbulence_is_not_growth() -> None:
     """A stationary random response (a lightly damped mode driven by white noise, as the tunnel's turbulence drives
     the panel below flutter) wanders in level over a few seconds; it is not "growing" (the demo's 8 m/s plateau

@@ -34,7 +34,9 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   (hysteresis), so later plateaus say nothing about the onset. Extrapolated where at least
   two decaying plateaus (U > 0.5 m/s, below the bracket) exist: a straight line through the decay
   rates of the (up to ``extrapolation_points``) fastest ones, to zero rate. Where the upper end of
-  the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated) and its lower end
+  the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated), or ``lco`` with the
+  growth seen before it saturated (``onset_growth_rate_per_s``: the log-envelope slope over the windows below
+  ``onset_ceiling`` of the largest, at least ``onset_min_windows`` of them on a line), and its lower end
   ``decaying`` (U > 0.5 m/s; a ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
   between the two bracketing plateaus (``interpolated_mps``).
 """
@@ -71,6 +73,9 @@ class Criteria:
     min_growth_r2: float = 0.7
     min_extrapolation_airspeed_mps: float = 0.5
     extrapolation_points: int = 3
+    onset_ceiling: float = 0.2
+    onset_min_windows: int = 4
+    onset_min_r2: float = 0.9
 
 
 GAP_FACTOR = 3.0  # a sample interval this many times the median one is a gap in the recording
@@ -183,6 +188,20 @@ def _log_fit_r2(env: np.ndarray) -> float:
     return 1.0 - float(np.sum(resid**2)) / ss if ss > 0 else 1.0
 
 
+def onset_growth_rate_per_s(env: np.ndarray, window_s: float, crit: Criteria) -> float | None:
+    """Linear growth rate (1/s) of an oscillation that grew into an LCO within the plateau: the slope of log(envelope)
+    over the windows before the first one above ``onset_ceiling`` of the largest (the small-amplitude, linear
+    part of the growth). None unless there are ``onset_min_windows`` of them, their log is a line (R^2 >=
+    ``onset_min_r2``) and it rises faster than ``max_steady_rate_per_s``: an LCO carried over from an earlier
+    plateau, or one that grew during the tunnel's ramp, has no such part."""
+    big = np.flatnonzero(env > crit.onset_ceiling * env.max()) if env.size else np.zeros(0, int)
+    rising = env[: big[0]] if big.size else env[:0]
+    if rising.size < crit.onset_min_windows or np.any(rising <= 0) or _log_fit_r2(rising) < crit.onset_min_r2:
+        return None
+    slope = float(np.polyfit(np.arange(rising.size) * window_s, np.log(rising), 1)[0])
+    return slope if slope > crit.max_steady_rate_per_s else None
+
+
 def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sustain: float, r2: float,
             crit: Criteria) -> str:
     """lco: a sustained oscillation, either steady (|late rate| small) or irregular but large: RMS above
@@ -220,14 +239,16 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     third = max(1, late.size // 3)
     sustain = rms(late[-third:]) / max(rms(late[:third]), 1e-300)
     u = airspeed_mps[i0:i1]
+    status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit)
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),
         "airspeed_mps": float(np.mean(u)), "airspeed_std_mps": float(np.std(u)),
         "rms_tip_w_over_L": rms_late, "peak_tip_w_over_L": float(np.max(np.abs(late))),
         "dominant_frequency_hz": freq, "growth_rate_per_s": rate, "late_growth_rate_per_s": rate_late,
-        "status": _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain,
-                          _log_fit_r2(env), crit),
+        "onset_growth_rate_per_s": (onset_growth_rate_per_s(env, max(2, int(round(win_s / dt))) * dt, crit)
+                                    if status == "lco" else None),
+        "status": status,
     }
 
 
@@ -250,11 +271,14 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
         "first_lco_mps": first_lco["airspeed_mps"] if first_lco else None,
         "extrapolated_mps": None, "extrapolation_points": [], "interpolated_mps": None,
     }
-    # a quiet plateau's rate is the noise of a response that never rose: only a measured decay is interpolated
-    if (lower and upper and lower["status"] == "decaying" and upper["status"] == "growing"
+    # a quiet plateau's rate is the noise of a response that never rose: only a measured decay is interpolated;
+    # the top's rate is a growing plateau's, or the growth an LCO plateau saw before it saturated
+    top_rate = (None if upper is None else upper["growth_rate_per_s"] if upper["status"] == "growing"
+                else upper.get("onset_growth_rate_per_s"))
+    if (lower and top_rate is not None and lower["status"] == "decaying"
             and lower["airspeed_mps"] > crit.min_extrapolation_airspeed_mps
-            and upper["growth_rate_per_s"] > 0 > lower["growth_rate_per_s"]):
-        (u0, r0), (u1, r1) = ((p["airspeed_mps"], p["growth_rate_per_s"]) for p in (lower, upper))
+            and top_rate > 0 > lower["growth_rate_per_s"]):
+        (u0, r0), (u1, r1) = (lower["airspeed_mps"], lower["growth_rate_per_s"]), (upper["airspeed_mps"], top_rate)
         out["interpolated_mps"] = float(u0 - r0 * (u1 - u0) / (r1 - r0))
     pts = sorted(
         ((p["airspeed_mps"], p["growth_rate_per_s"]) for p in below
