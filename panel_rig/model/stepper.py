@@ -203,7 +203,10 @@ class Stepper:
         """Trailing-edge deflection w/L = sum q_i phi_i(1) (exact: int_0^1 sin theta, so |w/L| <= 1)."""
         if self.exact:
             return float(exact_tip(self.q, self._kin.psi, self._kin.quad.w))
-        return float(self._tip_vec @ self.q)
+        tip = 0.0  # the kernel's sum, term by term in mode order: numpy's dot may sum (or fuse) in another order
+        for c, qj in zip(self._tip_vec.tolist(), self.q.tolist()):
+            tip += c * qj
+        return tip
 
     def shape_w_over_L(self, x_over_L: np.ndarray, q: np.ndarray | None = None) -> np.ndarray:
         """w/L along the panel at x/L (exact: at arc length s = x/L of the undeformed panel; the point's
