@@ -513,9 +513,33 @@ def test_random_response_in_turbulence_is_not_growth() -> None:
         w = 1e-4 * y[2000:] / np.std(y[2000:])  # stationary (2000 samples of start-up dropped)
         statuses.append(analyze_plateau(t, w, u, {}, 0, n)["status"])
     assert "growing" not in statuses, statuses
+    # nor a decay: its envelope drifts (the demo's 8 m/s plateau was "decaying" at -0.125 1/s and stopped the
+    # onset extrapolation); a panel that moves but neither decays nor grows is stationary
+    assert set(statuses) == {"stationary"}, statuses
     rng = np.random.default_rng(1)
     growth = 1e-4 * np.exp(0.5 * t) * np.sin(2 * np.pi * 22.8 * t) + 2e-6 * rng.normal(size=n)
     assert analyze_plateau(t, growth, u, {}, 0, n)["status"] == "growing"
+
+
+def test_a_decay_is_measured_after_a_tap_or_along_a_line() -> None:
+    """decaying needs a measured decay: the free response after a shaker tap, or without a tap an envelope that
+    falls along a line (R^2 >= 0.98); the noisy drift of an untapped random response is stationary, a panel that
+    never moved quiet; a stationary plateau brackets the onset like a decaying one but gives no rate."""
+    from panel_rig.analysis.bag_analysis import Criteria, _status, estimate_onset
+
+    c = Criteria()
+    assert _status(1e-3, 2e-3, -0.05, -0.05, sustain=0.8, r2=0.99, crit=c, tapped=False) == "decaying"
+    assert _status(1e-3, 2e-3, -0.5, -0.5, sustain=0.1, r2=0.6, crit=c, tapped=True) == "decaying"
+    assert _status(1e-4, 2e-4, -0.215, 0.1, sustain=1.1, r2=0.92, crit=c, tapped=False) == "stationary"
+    assert _status(0.0, 0.0, 0.0, 0.0, sustain=1.0, r2=1.0, crit=c, tapped=False) == "quiet"
+
+    def p(u, status, t0, rate):
+        return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}
+
+    onset = estimate_onset([p(8.0, "stationary", 0, -0.125), p(10.0, "decaying", 10, -0.25), p(11.0, "growing", 20, 0.5)])
+    assert onset["bracket_low_mps"] == 10.0 and onset["extrapolated_mps"] is None
+    assert onset["extrapolation_points"] == [] and onset["interpolated_mps"] == pytest.approx(10 + 1 / 3)
+    assert estimate_onset([p(8.0, "stationary", 0, -0.125), p(11.0, "growing", 20, 0.5)])["bracket_low_mps"] == 8.0
 
 
 def test_instantaneous_airspeed_steps_are_separate_plateaus() -> None:

@@ -26,10 +26,14 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   else ``growing`` if both rates > ``max_steady_rate_per_s`` and the log-envelope is a line (R^2 >=
   ``min_growth_r2``): the tunnel's turbulence-driven random response wanders by more than that rate over a few
   seconds and was called growing when either rate was (the demo's 8 m/s plateau, which put the onset bracket
-  below it); else ``decaying`` if the free-response
-  rate < ``-max_steady_rate_per_s`` and the envelope rose above ``quiet_rms``; else ``quiet``.
+  below it); else ``quiet`` if the envelope never rose above ``quiet_rms``; else ``decaying`` if the
+  free-response rate < ``-max_steady_rate_per_s`` and the decay was measured: a free response after a shaker
+  tap, or without a tap an envelope falling along a line (R^2 >= ``min_decay_r2``: the random response's
+  envelope reached R^2 0.94 in 200 five-second samples); else ``stationary`` (the turbulence's random
+  response below flutter, whose envelope drifts: the demo's 8 m/s plateau, at -0.125 1/s with R^2 0.64, was
+  "decaying" and stopped the extrapolation).
 * **Onset**: bracketed by the first unstable plateau in time (``lco`` or ``growing``; also the first
-  ``lco`` one is named) and the fastest stable (``decaying`` or ``quiet``) plateau below it *and before
+  ``lco`` one is named) and the fastest stable (``decaying``, ``stationary`` or ``quiet``) plateau below it *and before
   it in time*: once an LCO has started, a subcritical system may stay in LCO below the flutter speed
   (hysteresis), so later plateaus say nothing about the onset. Extrapolated where at least
   two decaying plateaus (U > 0.5 m/s, below the bracket) exist: a straight line through the decay
@@ -37,7 +41,7 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   the bracket is still ``growing`` (its rate is the linear growth rate, not yet saturated), or ``lco`` with the
   growth seen before it saturated (``onset_growth_rate_per_s``: the log-envelope slope over the windows below
   ``onset_ceiling`` of the largest, at least ``onset_min_windows`` of them on a line), and its lower end
-  ``decaying`` (U > 0.5 m/s; a ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
+  ``decaying`` (U > 0.5 m/s; a ``stationary`` or ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
   between the two bracketing plateaus (``interpolated_mps``).
 """
 
@@ -73,11 +77,14 @@ class Criteria:
     min_growth_r2: float = 0.7
     min_extrapolation_airspeed_mps: float = 0.5
     extrapolation_points: int = 3
+    min_decay_r2: float = 0.98
     onset_ceiling: float = 0.2
     onset_min_windows: int = 4
     onset_min_r2: float = 0.9
 
 
+#: the statuses of a plateau below the flutter speed
+STABLE = ("decaying", "stationary", "quiet")
 GAP_FACTOR = 3.0  # a sample interval this many times the median one is a gap in the recording
 
 
@@ -203,11 +210,14 @@ def onset_growth_rate_per_s(env: np.ndarray, window_s: float, crit: Criteria) ->
 
 
 def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sustain: float, r2: float,
-            crit: Criteria) -> str:
+            crit: Criteria, tapped: bool = True) -> str:
     """lco: a sustained oscillation, either steady (|late rate| small) or irregular but large: RMS above
     irregular_lco_min_rms and either the RMS of the last third of the window within [0.5, 2] of the first
     third, or an envelope that is not exponential (R^2 of the log-envelope fit < 0.7; a free decay or growth
-    fits with R^2 > 0.9)."""
+    fits with R^2 > 0.9). decaying: a measured decay, the free response after a shaker tap (``tapped``), or
+    without one an envelope falling along a line (R^2 >= ``min_decay_r2``); a panel that moves but neither
+    decays so nor grows is stationary (the turbulence's random response: its envelope drifts), one that does not
+    move quiet."""
     lim = crit.max_steady_rate_per_s
     if rms_late >= crit.lco_min_rms and abs(rate_late) <= lim:
         return "lco"
@@ -215,9 +225,11 @@ def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sus
         return "lco"
     if rate > lim and rate_late > lim and peak_env > crit.quiet_rms and r2 >= crit.min_growth_r2:
         return "growing"
-    if rate < -lim and peak_env > crit.quiet_rms:
+    if peak_env <= crit.quiet_rms:
+        return "quiet"
+    if rate < -lim and (tapped or r2 >= crit.min_decay_r2):
         return "decaying"
-    return "quiet"
+    return "stationary"
 
 
 def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
@@ -239,7 +251,8 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     third = max(1, late.size // 3)
     sustain = rms(late[-third:]) / max(rms(late[:third]), 1e-300)
     u = airspeed_mps[i0:i1]
-    status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit)
+    status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
+                     tapped=f0 > t0)
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),
@@ -261,7 +274,7 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
     u_hi = upper["airspeed_mps"] if upper else math.inf
     # stable plateaus (decaying, or at rest) below the first unstable one, taken before it in time: after an
     # LCO has started, a subcritical system can stay in LCO below the flutter speed (hysteresis)
-    stable = [p for p in plateaus if p["status"] in ("decaying", "quiet") and p["airspeed_mps"] < u_hi]
+    stable = [p for p in plateaus if p["status"] in STABLE and p["airspeed_mps"] < u_hi]
     before = [p for p in stable if upper is None or p["t_end_s"] <= upper["t_start_s"]]
     lower = max(before, key=lambda p: p["airspeed_mps"], default=None)
     below = [p for p in before if p["status"] == "decaying"]

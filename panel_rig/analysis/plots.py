@@ -107,7 +107,8 @@ def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarr
     return _save(fig, path)
 
 
-_STATUS_STYLE = {"lco": ("C3", "o"), "growing": ("C1", "^"), "decaying": ("C0", "v"), "quiet": ("0.6", "s")}
+_STATUS_STYLE = {"lco": ("C3", "o"), "growing": ("C1", "^"), "decaying": ("C0", "v"), "stationary": ("C7", "D"),
+                 "quiet": ("0.6", "s")}
 
 
 def plot_time_history(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
