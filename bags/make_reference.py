@@ -7,9 +7,10 @@ of 1/2048 s; the LCO is ~23 Hz), the panel shape at 1 Hz, and paced at 2x real t
 `bags/stiffness_staircase.yaml`; it is started before the node, so that little rest is recorded before its first
 command. The turbulence is seeded (`tunnel.turbulence.seed`, default 0); the operator's command times are not
 (they land on the rig's clock within a publish period), so a re-recording differs in detail, not in kind.
-Then `panel-rig analyze` writes `analysis.json` and the PNGs next to the bag.
+Then `panel-rig analyze` writes `analysis.json` and the PNGs next to the bag; `--analysis-only` rewrites them
+for the shipped bag without recording it again (after a change to the analysis).
 
-    .venv/bin/python bags/make_reference.py
+    .venv/bin/python bags/make_reference.py [--analysis-only]
 """
 
 from __future__ import annotations
@@ -78,12 +79,13 @@ def install(bag: Path, dest: Path) -> None:
     meta_path.write_text(yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
 
 
-def main() -> int:
+def main(argv: list[str]) -> int:
     from panel_rig.analyze_cli import analyze_bag, format_table
 
     dest = ROOT / "bags" / NAME
-    with tempfile.TemporaryDirectory() as tmp:
-        install(record(Path(tmp)), dest)
+    if "--analysis-only" not in argv:
+        with tempfile.TemporaryDirectory() as tmp:
+            install(record(Path(tmp)), dest)
     result = analyze_bag(dest, plots_dir=dest / "plots")
     result["bag"] = f"bags/{NAME}"
     result["plots"] = [str(Path(p).relative_to(ROOT)) for p in result["plots"]]
@@ -95,4 +97,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(sys.argv[1:]))
