@@ -1,6 +1,6 @@
 """``panel-rig flutter-test``: the automatic flutter-clearance procedure on the live rig node, turbulence on.
 
-Default (live): the command starts the rig node (``python -m panel_rig.ros.node --fast``, the program a user
+Default (live): the command starts the rig node (``python -m panel_rig.ros.rig_node --fast``, the program a user
 runs) as a subprocess in a private ROS domain (a random ``ROS_DOMAIN_ID``, discovery limited to this host) with
 the run's physics, recording a bag, the flutter monitor on and its hold engaged, and drives it over topics with
 :class:`panel_rig.ros.flutter_client.FlutterTestClient`: airspeed set-points on ``/rig/airspeed_cmd``, one

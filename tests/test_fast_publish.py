@@ -229,7 +229,8 @@ def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: 
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode, spin
+    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
@@ -286,7 +287,8 @@ def test_fast_node_holds_its_realtime_factor_cap(ros_env: dict[str, str]) -> Non
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     cap = 4.0
     ctx = rclpy.Context()
@@ -363,7 +365,8 @@ def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[
     from rclpy.parameter import Parameter
 
     from panel_rig.recording import verify_bag
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
@@ -399,7 +402,8 @@ def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_p
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
