@@ -76,7 +76,7 @@ class ShapeSink:
     from its shape timer; without this the in-process test's panel-shape view stayed empty). The strip is the
     node's: the rigid airfoil at z = 0, then the panel (``SHAPE_POINTS`` points, its modal shape at the sample)."""
 
-    SHAPE_POINTS = 31  # as panel_rig.ros.node.SHAPE_POINTS (not imported: that module needs rclpy)
+    SHAPE_POINTS = 31  # as panel_rig.ros.publishing.SHAPE_POINTS (not imported: that module needs rclpy)
     N_AIRFOIL = 5
 
     def __init__(self, viz: Any, rig: Any, cfg: Any, period_s: float = 0.1) -> None:

@@ -7,7 +7,6 @@ the steady clock. Fast mode (``fast: true``): steps as fast as possible, publish
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from collections import deque
@@ -24,7 +23,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -39,7 +37,6 @@ from panel_rig.config import (
     float_from_text,
 )
 from panel_rig.rig.control import ControlSettings
-from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
@@ -52,13 +49,13 @@ from panel_rig.ros.params import (
     parameter_table,
     publish_rate_problem,
 )
+from panel_rig.ros.publishing import SHAPE_POINTS, ReadingPublisher, ReadingTopics, Recording
 from panel_rig.topics import REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-SHAPE_POINTS = 31
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
 HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
@@ -110,14 +107,11 @@ class RigNode(Node):
                        control=control, **extras)
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
-        self._shape_period_s = 1.0 / p["shape_rate_hz"]
         self._max_lag_s = p["max_lag_s"]
         self.fast_max_rtf: float = p["fast_max_realtime_factor"]
         self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
-        self._x_over_L = np.linspace(0.0, 1.0, SHAPE_POINTS)
-        self._trailing_edge_x_m = self.cfg.airfoil_length_m + self.cfg.panel_length_m
-        self._recorders: list[Any] = []
-        self._record_errors, self._diag_record_errors, self._last_record_error = 0, 0, ""
+        self.recording = Recording(self.get_logger())
+        self._diag_record_errors = 0
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
 
@@ -130,15 +124,14 @@ class RigNode(Node):
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
-        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
-        self._shape_cdr = messages.ShapeCdr(self.cfg.airfoil_length_m, self.cfg.panel_length_m, self._x_over_L)
-        marker = messages.shape_msg(0, self.cfg.airfoil_length_m, self.cfg.panel_length_m, np.zeros(SHAPE_POINTS),
-                                    self._x_over_L)
-        self._shape_x_m = np.array([pt.x for pt in marker.points])  # the Rerun strip: airfoil, then the panel
-        self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
-                                                                        self.pub_shape, self.pub_diag, self.pub_truth)}
+        topics = ReadingTopics(self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_shape,
+                               self.pub_clock)
+        self.publication = ReadingPublisher(self.rig, self.cfg, self._names, topics, self.recording, rerun=self._rerun,
+                                            logger=self.get_logger(), shape_period_s=1.0 / p["shape_rate_hz"])
+        recorded = [self.pub_tip, self.pub_modal, self.pub_airspeed, self.pub_shape, self.pub_diag, self.pub_truth]
         if self._flutter_monitor is not None:  # created with the sinks: recorded under its full name too
-            self._full[self.pub_flutter] = self._topic_name(self.pub_flutter.topic_name)
+            recorded.append(self.pub_flutter)
+        self.recording.topics.update({pub: self._topic_name(pub.topic_name) for pub in recorded})
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -157,7 +150,8 @@ class RigNode(Node):
         self._diag_rejected = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
-        self._stamp_offset_ns = 0 if self.fast else self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
+        if not self.fast:
+            self.publication.stamp_offset_ns = self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
         self._wall0 = time.monotonic()
         self._wall_anchor = self._wall0
         self._sim_anchor = self.rig.time_s
@@ -167,13 +161,7 @@ class RigNode(Node):
         self._window_intervals: list[float] = []
         self._diag_wall = self._wall0
         self._diag_sim = self.rig.time_s
-        self._next_shape_s = 0.0
         self._fast_next_s = self.rig.time_s
-        # a stepper that draws the shape of any sample's q lets fast mode march whole blocks past shape samples
-        try:
-            self._shape_of_q = "q" in inspect.signature(self.rig.stepper.shape_w_over_L).parameters
-        except (TypeError, ValueError, AttributeError):
-            self._shape_of_q = False
         self._pending: dict[str, Any] = {}
         self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
         self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -325,7 +313,7 @@ class RigNode(Node):
                 self._tick_timer = self.create_timer(self._publish_period_s, self._tick)
                 self._last_tick = None
         if "shape_rate_hz" in pending:
-            self._shape_period_s = 1.0 / pending["shape_rate_hz"]
+            self.publication.shape_period_s = 1.0 / pending["shape_rate_hz"]
         if "diagnostics_rate_hz" in pending:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = self.create_timer(1.0 / pending["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -369,7 +357,7 @@ class RigNode(Node):
                 from panel_rig.recording import BagWriter, fresh_bag_dir
 
                 writer = BagWriter(fresh_bag_dir(Path(p["bag_dir"]), "rig"))
-                self._recorders.append(writer)
+                self.recording.recorders.append(writer)
                 writer.write_parameters({prm.name: prm.value for prm in self._parameters.values()})
             except Exception as exc:  # noqa: BLE001 (RecordingError, OSError, no mcap)
                 self.close()
@@ -385,35 +373,12 @@ class RigNode(Node):
         plateau = {"point_index": mon.published, "plateau_start_s": mon.plateau_start_s, "settle_s": mon.settle_s,
                    "dwell_s": mon.dwell_s, "sim_time_s": time_s, "flutter_band_low_hz": band[0],
                    "flutter_band_high_hz": band[1], "identify_wall_s": mon.last_wall_s}
-        stamp = self._stamp_ns(time_s)
-        self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered,
-                                                    plateau=plateau), stamp, qos="reliable")
+        stamp = self.publication.stamp_ns(time_s)
+        msg = monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered, plateau=plateau)
+        self.publication.publish(self.pub_flutter, msg, stamp, qos="reliable")
         if self._rerun is not None and not fluttered:
             self._rerun.log_flutter_point(time_s, self._flutter_monitor.points, decision,
                                           self._flutter_monitor.settings.margin)
-
-    def _stamp_ns(self, time_s: float) -> int:
-        """The stamp of simulated time ``time_s``: itself in fast mode (with /clock), the ROS clock in real time."""
-        return messages.stamp_ns(time_s) + self._stamp_offset_ns
-
-    def _publish(self, pub: Any, msg: Any, stamp_ns: int, qos: str = "sensor") -> None:
-        """Serialise once; the same bytes go to the topic and to every recorder."""
-        self._publish_bytes(pub, msg, serialize_message(msg), stamp_ns, qos)
-
-    def _publish_bytes(self, pub: Any, msg: Any, data: bytes, stamp_ns: int, qos: str = "sensor") -> None:
-        pub.publish(data)
-        self._record(lambda rec: rec.write(self._full[pub], msg, stamp_ns, qos=qos, data=data))
-
-    def _record(self, write: Callable[[Any], Any]) -> None:
-        """``write(recorder)`` for every recorder. A failure (a full disk) is logged, counted and shown in
-        /diagnostics (level ERROR while it goes on); the rig carries on."""
-        for rec in self._recorders:
-            try:
-                write(rec)
-            except Exception as exc:  # noqa: BLE001
-                self._record_errors += 1
-                self._last_record_error = str(exc)
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
 
     def _topic_name(self, name: str) -> str:
         return name if name.startswith("/") else f"{self._topic_prefix}/{name}"
@@ -434,11 +399,11 @@ class RigNode(Node):
         acts from the simulated instant of its arrival."""
         self._command_arrived()
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        stamp_s = (stamp_ns - self._stamp_offset_ns) * 1e-9
+        stamp_s = (stamp_ns - self.publication.stamp_offset_ns) * 1e-9
         if self.fast:  # lock-step: the rig waited for this answer; the transport latency is emulated
             arrival_s = self.rig.time_s + self._fast_delay_s
         else:
-            arrival_s = (self.get_clock().now().nanoseconds - self._stamp_offset_ns) * 1e-9
+            arrival_s = (self.get_clock().now().nanoseconds - self.publication.stamp_offset_ns) * 1e-9
         force = msg.wrench.force.z
         result = self.rig.command_control(force, stamp_s, arrival_s)
         if result.accepted and self.fast:
@@ -555,10 +520,11 @@ class RigNode(Node):
     def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
         """Every command received goes into the recording: on its own topic if the rig took it, else on
         ``<topic>/rejected`` (a replay or an analysis of the bag then sees the commands that acted)."""
-        if not self._recorders:
+        if not self.recording.active:
             return
         name = topic if accepted else topic + REJECTED_SUFFIX
-        self._record(lambda rec: rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable"))
+        stamp = self.publication.stamp_ns(self.rig.time_s)
+        self.recording.record(lambda rec: rec.write(name, msg, stamp, qos="reliable"))
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         was = self.rig.state
@@ -596,16 +562,16 @@ class RigNode(Node):
                 and time.monotonic() < deadline:
             pass
         if time.monotonic() < deadline:  # on time (as nearly always): one compiled call up to the clock
-            self._publish_block(self.rig.advance_samples(self._tick_counts(target)))
+            self.publication.publish_block(self.rig.advance_samples(self._tick_counts(target)))
         else:
-            self.publish_readings()
+            self.publication.publish_readings()
         self._last_sample_s = self.rig.time_s
         lag = target - self.rig.time_s
         if lag > self._max_lag_s:
             # cannot catch up within the bound: count it and let simulated time slip
             self.rig.note_overrun()
             self._wall_anchor += lag
-            self._stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
+            self.publication.stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
             self.get_logger().warning(f"overrun: {lag * 1e3:.1f} ms behind the clock", throttle_duration_sec=1.0)
 
     def _tick_counts(self, target_s: float) -> list[int]:
@@ -630,8 +596,9 @@ class RigNode(Node):
         periods = 1 if self._lockstep else FAST_MAX_BLOCK_PERIODS  # a controller in lock-step: one period
         # blocks end at the next shape sample if the shape needs the stepper's own state, and while anyone subscribes
         # to the readings: a best-effort subscriber (depth 5) keeps up with bursts of ~17 periods, not of 64
-        if not self._shape_of_q or self._readings_subscribed():
-            periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
+        out = self.publication
+        if not out.shape_of_q or out.readings_subscribed():
+            periods = min(max(math.ceil((out.next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
         counts, t = [], self.rig.time_s
         for k in range(1, periods + 1):
             target = start + k * self._publish_period_s
@@ -639,120 +606,7 @@ class RigNode(Node):
             counts.append(n)
             t += n * self.dt_s
         self._fast_next_s = start + periods * self._publish_period_s
-        self._publish_block(self.rig.advance_samples(counts))
-
-    def _readings_subscribed(self) -> bool:
-        pubs = (self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_clock)
-        return any(pub is not None and pub.get_subscription_count() for pub in pubs)
-
-    def publish_readings(self) -> Reading:
-        """The current reading to topics and sinks (real-time tick); the shape at its own rate."""
-        r = self.rig.reading()
-        self._publish_block(ReadingBlock.of([r]))
-        return r
-
-    def _publish_block(self, block: ReadingBlock) -> None:
-        """Samples to sinks, topics and recorders (one serialisation, one bag write per block), then the shape of
-        each sample that is due (a recorded block's shapes follow its readings: log times overlap by at most one
-        block, which MCAP's per-chunk indexes and log-time-ordered readers take as they come)."""
-        if not len(block):
-            return
-        self.rig.emit_block(block)
-        msgs, recording = self._msgs, bool(self._recorders)
-        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
-                (self.pub_truth, msgs.truth))
-        encoded_block = msgs.encode_block(block, self._stamp_offset_ns)
-        if encoded_block is not None:
-            self._publish_encoded(pubs, encoded_block)
-        else:
-            self._publish_each(pubs, block, recording)
-        self._publish_due_shapes(block)
-
-    def _publish_due_shapes(self, block: ReadingBlock) -> None:
-        """The shape at each sample that reaches the next shape time (of that sample's q if the stepper can draw
-        it, else only at the block's last sample: such blocks end at the shape samples)."""
-        times, n, due = block.time_s, len(block), []
-        while True:
-            k = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
-            if k >= n:
-                break
-            k = k if self._shape_of_q else n - 1
-            due.append(k)
-            self._next_shape_s = float(times[k]) + self._shape_period_s
-            if not self._shape_of_q:
-                break
-        if not due:
-            return
-        aborted = block.state == ABORTED
-        if self._shape_of_q and self._shape_cdr.ok and len(due) > 1:
-            self._publish_shapes(times[due], block.q[due], aborted)
-            return
-        for k in due:
-            self._publish_shape(float(times[k]), aborted, block.q[k] if self._shape_of_q else None)
-
-    def _publish_shapes(self, times_s: np.ndarray, q: np.ndarray, aborted: bool) -> None:
-        """Several shapes (of modal coordinates q, one row each) at once: drawn together, one bag write, published
-        one by one if anyone subscribes (a volatile depth-1 topic: with no subscriber a publish reaches nobody)."""
-        z_m = np.asarray(self.rig.shape_w_over_L(self._x_over_L, q), dtype=float) * self.cfg.panel_length_m
-        stamps = np.array([self._stamp_ns(float(t)) for t in times_s], dtype=np.int64)
-        rows = self._shape_cdr.pack_block(stamps, z_m, aborted)
-        self._record(lambda rec: rec.write_block([(self._full[self.pub_shape], self._shape_cdr.message(aborted))],
-                                                 stamps, [rows], qos="reliable"))
-        if self.pub_shape.get_subscription_count():
-            for row in messages.EncodedBlock.rows(rows):
-                self.pub_shape.publish(row)
-        if self._rerun is not None:
-            for t, z in zip(times_s, z_m):
-                self._queue_rerun_shape(float(t), z)
-
-    def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
-        """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
-        messages (sample by sample, topics in the same order as before) if anyone subscribes to it: with no
-        matched subscription (best-effort/volatile sensor QoS; /clock volatile) a publish reaches nobody."""
-        self._record(lambda rec: rec.write_block([(self._full[pub], msg) for pub, msg in pubs], enc.stamps_ns,
-                                                 enc.payloads))
-        streams = [(pub.publish, enc.rows(data)) for (pub, _), data in zip(pubs, enc.payloads)
-                   if pub.get_subscription_count()]
-        if self.pub_clock is not None and self.pub_clock.get_subscription_count():
-            streams.append((self.pub_clock.publish, enc.rows(enc.clock)))
-        if not streams:
-            return
-        for row in zip(*(rows for _, rows in streams)):
-            for (publish, _), data in zip(streams, row):
-                publish(data)
-
-    def _publish_each(self, pubs: tuple[tuple[Any, Any], ...], block: ReadingBlock, recording: bool) -> None:
-        """Message by message (the layouts are not fixed: rclpy serialises each)."""
-        msgs = self._msgs
-        for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
-            for (pub, msg), data in zip(pubs, encoded):
-                if recording:
-                    self._publish_bytes(pub, msg, data, stamp_ns)
-                else:
-                    pub.publish(data)
-            if self.pub_clock is not None:
-                self.pub_clock.publish(msgs.clock_bytes(stamp_ns))
-
-    def _publish_shape(self, t: float, aborted: bool, q: np.ndarray | None = None) -> None:
-        w = self.rig.shape_w_over_L(self._x_over_L, q)
-        stamp = self._stamp_ns(t)
-        z_m = np.asarray(w, dtype=float) * self.cfg.panel_length_m
-        if self._shape_cdr.ok:  # the Marker's CDR from its template (serialize_message of 36 points: ~0.3 ms)
-            self._publish_bytes(self.pub_shape, self._shape_cdr.message(aborted), self._shape_cdr.pack(stamp, z_m, aborted),
-                                stamp, qos="reliable")
-        else:
-            marker = self._msgs.shape(stamp, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L,
-                                      aborted)
-            self._publish(self.pub_shape, marker, stamp, qos="reliable")
-        if self._rerun is not None:
-            self._queue_rerun_shape(t, z_m)
-
-    def _queue_rerun_shape(self, t: float, z_m: np.ndarray) -> None:
-        try:
-            z_all = np.concatenate([np.zeros(self._shape_x_m.size - z_m.size), z_m])
-            self._rerun.queue_shape(t, self._shape_x_m, np.where(np.isfinite(z_all), z_all, 0.0))
-        except Exception as exc:  # noqa: BLE001
-            self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
+        self.publication.publish_block(self.rig.advance_samples(counts))
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
@@ -795,33 +649,29 @@ class RigNode(Node):
             "tick_jitter_p99_ms": f"{jitter:.3f}",
             "physics_dt_s": f"{self.dt_s:.9g}",
             "sink_errors": rig.sink_errors,
-            "recording": ("failed" if self._record_errors else "on") if self._recorders else "off",
-            "recording_errors": self._record_errors,
-            "last_recording_error": self._last_record_error,
+            "recording": ("failed" if self.recording.errors else "on") if self.recording.active else "off",
+            "recording_errors": self.recording.errors,
+            "last_recording_error": self.recording.last_error,
             **self._control_diagnostics(),
         }
         rejected_now = rig.rejected_count - self._diag_rejected
         self._diag_rejected = rig.rejected_count
-        record_errors_now = self._record_errors - self._diag_record_errors
-        self._diag_record_errors = self._record_errors
+        record_errors_now = self.recording.errors - self._diag_record_errors
+        self._diag_record_errors = self.recording.errors
         if rig.state == ABORTED:
             level, message = DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
         elif record_errors_now:
-            level, message = DiagnosticStatus.ERROR, f"recording failed: {self._last_record_error}"
+            level, message = DiagnosticStatus.ERROR, f"recording failed: {self.recording.last_error}"
         elif rejected_now:
             level, message = DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
         else:
             level, message = DiagnosticStatus.OK, rig.state
-        stamp = self._stamp_ns(sim)
-        self._publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp, "reliable")
+        stamp = self.publication.stamp_ns(sim)
+        self.publication.publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp,
+                                 "reliable")
 
     def close(self) -> None:
         """Close recorders, then the rig's sinks (idempotent): the bag is closed first, whatever a viewer sink
         does on closing."""
-        for rec in self._recorders:
-            try:
-                rec.close()
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"closing the recording failed: {exc}")
-        self._recorders.clear()
+        self.recording.close()
         self.rig.close()
