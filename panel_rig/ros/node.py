@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -40,6 +40,7 @@ from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
+from panel_rig.ros.diagnostics import diagnostic_level, diagnostic_values, jitter_p99_ms, run_stats
 from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
@@ -468,30 +469,6 @@ class RigNode(Node):
             return False
         return True
 
-    def _control_diagnostics(self) -> dict[str, Any]:
-        """Control actuator state and command ages (mean, p99, max over this diagnostics period; mean, p99 over the
-        last 100 000 commands)."""
-        c = self.rig.control
-        window = c.latency_stats_ms(c.take_window())
-        total = c.latency_stats_ms()
-
-        def ms(x: float) -> str:
-            return f"{x:.3f}" if math.isfinite(x) else "nan"
-
-        return {
-            "control_state": c.state,
-            "control_lockstep": self._lockstep,
-            "control_force_npm": f"{c.force_npm:.6f}",
-            "control_commands": c.commands,
-            "control_timeouts": c.timeouts,
-            "control_latency_mean_ms": ms(window["mean"]),
-            "control_latency_p99_ms": ms(window["p99"]),
-            "control_latency_max_ms": ms(window["max"]),
-            "control_latency_n": window["n"],
-            "control_latency_mean_total_ms": ms(total["mean"]),
-            "control_latency_p99_total_ms": ms(total["p99"]),
-        }
-
     # ---- commands and services -----------------------------------------------------------------------
     def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
         """The subscription callback of one command topic: apply, record, and on a refusal warn and echo the
@@ -610,63 +587,23 @@ class RigNode(Node):
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
-        wall = time.monotonic() - self._wall0
-        intervals = np.asarray(self.tick_intervals_s, dtype=float)
-        jitter = np.abs(intervals - self._publish_period_s) * 1e3 if intervals.size else np.zeros(1)
-        return {
-            "sim_time_s": self.rig.time_s,
-            "wall_time_s": wall,
-            "realtime_factor": self.rig.time_s / wall if wall > 0 else 0.0,
-            "overruns": self.rig.overrun_count,
-            "ticks": int(intervals.size),
-            "tick_jitter_p99_ms": float(np.percentile(jitter, 99)),
-            "tick_interval_mean_ms": float(intervals.mean() * 1e3) if intervals.size else 0.0,
-        }
+        return run_stats(self.rig, time.monotonic() - self._wall0, self.tick_intervals_s, self._publish_period_s)
 
     def publish_diagnostics(self) -> None:
         """State, real-time factor (last window), overruns, rejected commands, last rejection."""
         now = time.monotonic()
-        sim = self.rig.time_s
-        rtf = (sim - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
-        self._diag_wall, self._diag_sim = now, sim
-        window = np.asarray(self._window_intervals, dtype=float)
+        rig, recording = self.rig, self.recording
+        rtf = (rig.time_s - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
+        self._diag_wall, self._diag_sim = now, rig.time_s
+        jitter_ms = jitter_p99_ms(self._window_intervals, self._publish_period_s)
         self._window_intervals = []
-        jitter = float(np.percentile(np.abs(window - self._publish_period_s), 99) * 1e3) if window.size else 0.0
-        rig = self.rig
-        values = {
-            "state": rig.state,
-            "mode": "fast" if self.fast else "real-time",
-            "sim_time_s": f"{sim:.6f}",
-            "real_time_factor": f"{rtf:.4f}",
-            "overruns": rig.overrun_count,
-            "rejected_commands": rig.rejected_count,
-            "last_rejection": rig.last_rejection,
-            "abort_reason": rig.abort_reason,
-            "aborts": rig.abort_count,
-            "last_abort_time_s": f"{rig.abort_time_s:.6f}" if rig.abort_count else "",
-            "airspeed_setpoint_mps": f"{rig.actuator.setpoint_mps:.4f}",
-            "airspeed_mps": f"{rig.actuator.airspeed_mps:.4f}",
-            "tick_jitter_p99_ms": f"{jitter:.3f}",
-            "physics_dt_s": f"{self.dt_s:.9g}",
-            "sink_errors": rig.sink_errors,
-            "recording": ("failed" if self.recording.errors else "on") if self.recording.active else "off",
-            "recording_errors": self.recording.errors,
-            "last_recording_error": self.recording.last_error,
-            **self._control_diagnostics(),
-        }
+        values = diagnostic_values(rig, recording, fast=self.fast, rtf=rtf, jitter_ms=jitter_ms, lockstep=self._lockstep)
         rejected_now = rig.rejected_count - self._diag_rejected
         self._diag_rejected = rig.rejected_count
-        record_errors_now = self.recording.errors - self._diag_record_errors
-        self._diag_record_errors = self.recording.errors
-        if rig.state == ABORTED:
-            level, message = DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
-        elif record_errors_now:
-            level, message = DiagnosticStatus.ERROR, f"recording failed: {self.recording.last_error}"
-        elif rejected_now:
-            level, message = DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
-        else:
-            level, message = DiagnosticStatus.OK, rig.state
-        stamp = self.publication.stamp_ns(sim)
+        record_errors_now = recording.errors - self._diag_record_errors
+        self._diag_record_errors = recording.errors
+        level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error)
+        stamp = self.publication.stamp_ns(rig.time_s)
         self.publication.publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp,
                                  "reliable")
 

@@ -41,6 +41,11 @@ class Recording:
     def active(self) -> bool:
         return bool(self.recorders)
 
+    @property
+    def state(self) -> str:
+        """"off" (nothing recorded), "on", or "failed" (a write has failed)."""
+        return ("failed" if self.errors else "on") if self.recorders else "off"
+
     def record(self, write: Callable[[Any], Any]) -> None:
         """``write(recorder)`` for every recorder. A failure (a full disk) is logged, counted and shown in
         /diagnostics (level ERROR while it goes on); the rig carries on."""
