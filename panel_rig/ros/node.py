@@ -34,7 +34,6 @@ from panel_rig.config import (
     ConfigError,
     PanelConfig,
     config_from_flat,
-    float_from_text,
 )
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
@@ -45,8 +44,9 @@ from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
     NODE_PARAMS,
+    as_declared,
     check_node_params,
-    combination_problems,
+    live_change_problem,
     parameter_table,
     publish_rate_problem,
 )
@@ -219,21 +219,8 @@ class RigNode(Node):
             )
         return cfg, node_values
 
-    def _as_declared(self, prm: Parameter) -> Parameter:
-        """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
-        (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
-        as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
-        entry = self._table.get(prm.name)
-        if entry is None or not isinstance(entry[0], float):
-            return prm
-        if prm.type_ == Parameter.Type.INTEGER:
-            return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-        if prm.type_ == Parameter.Type.STRING and (number := float_from_text(prm.value)) is not None:
-            return Parameter(prm.name, Parameter.Type.DOUBLE, number)
-        return prm
-
     def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
-        return [self._as_declared(prm) for prm in params]
+        return [as_declared(self._table, prm) for prm in params]
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
@@ -247,31 +234,14 @@ class RigNode(Node):
         """A read-only parameter (ours or rclpy's own) given the value and type it has."""
         if not self.has_parameter(prm.name) or not self.describe_parameter(prm.name).read_only:
             return False
-        prm, current = self._as_declared(prm), self.get_parameter(prm.name)
+        prm, current = as_declared(self._table, prm), self.get_parameter(prm.name)
         return prm.type_ == current.type_ and prm.value == current.value
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live change: physics and structural parameters are refused with a reason."""
-        for prm in params:
-            if prm.name == "use_sim_time" and prm.value != self.get_parameter("use_sim_time").value:
-                # rclpy takes it live, and a real-time node then waits for a /clock nobody publishes: frozen
-                return SetParametersResult(successful=False, reason="use_sim_time is read at start: restart the "
-                                           "node with -p use_sim_time:=true (a fast node publishes /clock itself)")
-            spec = NODE_PARAMS.get(prm.name)
-            if spec is None:
-                continue
-            reason = spec.check(prm.value)
-            if reason:
-                return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
-            if prm.name == "publish_rate_hz":
-                reason = publish_rate_problem(float(prm.value), self.rig.dt_s)
-                if reason:
-                    return SetParametersResult(successful=False, reason=reason)
-        after = {name: self.get_parameter(name).value for name in ("control.fast_delay_s", "control.timeout_s")}
-        after.update({prm.name: prm.value for prm in params if prm.name in after})
-        problems = combination_problems(after)
-        if problems:
-            return SetParametersResult(successful=False, reason=problems[0])
+        reason = live_change_problem(params, lambda name: self.get_parameter(name).value, self.rig.dt_s)
+        if reason is not None:
+            return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
     def _after_set_parameters(self, params: list[Parameter]) -> None:
