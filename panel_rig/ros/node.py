@@ -2,7 +2,11 @@
 ``panel_rig.rig``); the program that runs it, ``rig_node``, is :mod:`panel_rig.ros.rig_node`.
 
 Real-time mode (default): a timer at ``publish_rate_hz`` advances the rig in whole physics steps to
-the steady clock. Fast mode (``fast: true``): steps as fast as possible, publishes ``/clock``.
+the steady clock. Fast mode (``fast: true``): steps as fast as possible, publishes ``/clock``. The node declares
+its topics, services, parameters and timers here and hands the work on: readings and shapes go out through a
+:class:`~panel_rig.ros.publishing.ReadingPublisher` (and a :class:`~panel_rig.ros.publishing.Recording`), step
+counts and the fast mode's holds come from :mod:`panel_rig.ros.pacing`, the parameter checks from
+:mod:`panel_rig.ros.params` and the /diagnostics values from :mod:`panel_rig.ros.diagnostics`.
 """
 
 from __future__ import annotations
@@ -29,17 +33,13 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from panel_rig.config import (
-    SCHEMA,
-    ConfigError,
-    PanelConfig,
-    config_from_flat,
-)
+from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
 from panel_rig.rig.control import ControlSettings
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.diagnostics import diagnostic_level, diagnostic_values, jitter_p99_ms, run_stats
+from panel_rig.ros.pacing import ClientHolds, step_counts, tick_counts
 from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
@@ -59,7 +59,6 @@ COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
-HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
 
 
@@ -112,7 +111,6 @@ class RigNode(Node):
         self.fast_max_rtf: float = p["fast_max_realtime_factor"]
         self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
         self.recording = Recording(self.get_logger())
-        self._diag_record_errors = 0
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
 
@@ -149,6 +147,7 @@ class RigNode(Node):
 
         # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
         self._diag_rejected = 0
+        self._diag_record_errors = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
         if not self.fast:
@@ -304,11 +303,8 @@ class RigNode(Node):
                                                        settle_s=p["flutter_test.settle_s"],
                                                        dwell_s=p["flutter_test.dwell_s"])
             self.rig.sinks.append(self._flutter_monitor)
-        self._flutter_hold = bool(p["flutter_test.hold"] and p["fast"] and self._flutter_monitor is not None)
-        # fast_wait_for_command: released by the first command, or after HOLD_TIMEOUT_S of wall time (logged)
-        self._start_hold_until: float | None = time.monotonic() + HOLD_TIMEOUT_S if (
-            p["fast_wait_for_command"] and p["fast"]) else None
-        self._hold_since: float | None = None
+        self.holds = ClientHolds(self.rig, self.get_logger(), wait_for_command=p["fast_wait_for_command"] and p["fast"],
+                                 flutter_hold=p["flutter_test.hold"] and p["fast"], flutter_monitor=self._flutter_monitor)
         # asked for and not possible: the node does not start (a run believed recorded must not go unrecorded)
         self._rerun: Any = None
         if p["rerun"] != "none":
@@ -368,7 +364,7 @@ class RigNode(Node):
     def _on_control(self, msg: WrenchStamped) -> None:
         """Age = now - stamp in the rig's time base (real time: the ROS clock; fast: simulated time); the command
         acts from the simulated instant of its arrival."""
-        self._command_arrived()
+        self.holds.command_arrived()
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         stamp_s = (stamp_ns - self.publication.stamp_offset_ns) * 1e-9
         if self.fast:  # lock-step: the rig waited for this answer; the transport latency is emulated
@@ -405,40 +401,6 @@ class RigNode(Node):
                 return
             executor.spin_once(timeout_sec=0.002)
 
-    def waiting_for_command(self) -> bool:
-        """Fast mode with ``fast_wait_for_command``: true until the first command arrives, so a session's clock
-        starts with its operator (the fast node ran ~40 simulated s at 0 m/s while one was discovered)."""
-        if self._start_hold_until is None:
-            return False
-        if time.monotonic() > self._start_hold_until:
-            self._start_hold_until = None
-            self.get_logger().warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway")
-            return False
-        return True
-
-    def _command_arrived(self) -> None:
-        if self._start_hold_until is not None:
-            self._start_hold_until = None
-            self.get_logger().info(f"first command: simulated time starts at t = {self.rig.time_s:.3f} s")
-
-    def flutter_holding(self) -> bool:
-        """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
-        point until the next one (the flutter-test client connects, then decides; simulated time waits, so results
-        do not depend on how fast the client is, and a run is reproducible from its seed). A client silent for
-        HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
-        if not (self._flutter_hold and self._flutter_monitor.waiting):
-            self._hold_since = None
-            return False
-        now = time.monotonic()
-        if self._hold_since is None:
-            self._hold_since = now
-        if now - self._hold_since > HOLD_TIMEOUT_S:
-            self._flutter_hold = False
-            self.get_logger().warning(f"no airspeed command for {HOLD_TIMEOUT_S:g} s (wall) after a test point: "
-                                      f"flutter-test hold released at t = {self.rig.time_s:.3f} s")
-            return False
-        return True
-
     # ---- commands and services -----------------------------------------------------------------------
     def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
         """The subscription callback of one command topic: apply, record, and on a refusal warn and echo the
@@ -447,7 +409,7 @@ class RigNode(Node):
         echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, COMMAND_QOS)
 
         def callback(msg: Float64) -> None:
-            self._command_arrived()
+            self.holds.command_arrived()
             result = command(msg.data)
             self._record_command(full, msg, result.accepted)
             if not result.accepted:
@@ -509,7 +471,8 @@ class RigNode(Node):
                 and time.monotonic() < deadline:
             pass
         if time.monotonic() < deadline:  # on time (as nearly always): one compiled call up to the clock
-            self.publication.publish_block(self.rig.advance_samples(self._tick_counts(target)))
+            counts = tick_counts(self.rig.time_s, self._last_sample_s, target, self._publish_period_s, self.dt_s)
+            self.publication.publish_block(self.rig.advance_samples(counts))
         else:
             self.publication.publish_readings()
         self._last_sample_s = self.rig.time_s
@@ -521,21 +484,6 @@ class RigNode(Node):
             self.publication.stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
             self.get_logger().warning(f"overrun: {lag * 1e3:.1f} ms behind the clock", throttle_duration_sec=1.0)
 
-    def _tick_counts(self, target_s: float) -> list[int]:
-        """Steps before each sample of a real-time tick: one publish period after the last sample while that
-        leaves more than half a period to ``target_s`` (the samples a late tick owes), then ``target_s``."""
-        period, dt = self._publish_period_s, self.dt_s
-        times, last = [], max(self._last_sample_s, self.rig.time_s)
-        while last + 1.5 * period <= target_s:
-            last += period
-            times.append(last)
-        counts, t = [], self.rig.time_s
-        for t_k in (*times, target_s):
-            n = max(math.floor((t_k - t) / dt + 1e-6), 0)
-            counts.append(n)
-            t += n * dt
-        return counts
-
     def fast_iteration(self) -> None:
         """Fast mode: march up to FAST_MAX_BLOCK_PERIODS publish periods in one block (up to the next shape sample
         if the stepper cannot draw a sample's shape or the readings have subscribers), then publish them all."""
@@ -546,12 +494,8 @@ class RigNode(Node):
         out = self.publication
         if not out.shape_of_q or out.readings_subscribed():
             periods = min(max(math.ceil((out.next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
-        counts, t = [], self.rig.time_s
-        for k in range(1, periods + 1):
-            target = start + k * self._publish_period_s
-            n = max(math.floor((target - t) / self.dt_s + 1e-6), 0)
-            counts.append(n)
-            t += n * self.dt_s
+        targets = [start + k * self._publish_period_s for k in range(1, periods + 1)]
+        counts = step_counts(self.rig.time_s, targets, self.dt_s)
         self._fast_next_s = start + periods * self._publish_period_s
         self.publication.publish_block(self.rig.advance_samples(counts))
 

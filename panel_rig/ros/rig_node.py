@@ -42,7 +42,7 @@ def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[
         if not node.fast:
             executor.spin_once(timeout_sec=0.05)
             continue
-        if node.waiting_for_command() or node.flutter_holding():  # a client to come, or deciding: callbacks only
+        if node.holds.waiting_for_command() or node.holds.flutter_holding():  # a client to come, or deciding: callbacks only
             executor.spin_once(timeout_sec=FAST_SPIN_PERIOD_S)
             pace.anchor(node.rig.time_s)
             continue
