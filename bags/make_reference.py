@@ -48,7 +48,7 @@ def record(tmp: Path) -> Path:
     # operator to be discovered is recorded at rest (a loaded machine once put 49 s of rest at the start)
     rclpy.init()
     operator = Operator("/rig", 60.0)
-    node = subprocess.Popen([sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+    node = subprocess.Popen([sys.executable, "-m", "panel_rig.ros.rig_node", "--fast", "--ros-args", "-r", "__ns:=/rig",
                              *params], env=env, cwd=ROOT)
     try:
         summary = operator.play(steps)

@@ -29,7 +29,8 @@ def measure(duration_s: float = 30.0, airspeed_factor: float = 0.9) -> dict[str,
     from panel_rig.analysis.control import LoopModel, closed_loop_flutter, design_law, effective_delay
     from panel_rig.config import load_config
     from panel_rig.model.aeroelastic import AeroelasticModel
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     cfg = load_config()
     model = AeroelasticModel(cfg)

@@ -27,7 +27,8 @@ def _run(fast: bool, duration_s: float, airspeed_mps: float, sinks_dir: str | No
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=random.randint(201, 230))

@@ -467,7 +467,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def _node_main(argv: Sequence[str]) -> int:
-    from panel_rig.ros.node import main
+    from panel_rig.ros.rig_node import main
 
     return main(argv)
 

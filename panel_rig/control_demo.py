@@ -189,7 +189,7 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     node_log, ctl_log = out / f"{run_name}_node.log", out / f"{run_name}_controller.log"
     with open(node_log, "w") as fh:  # own sessions: a Ctrl-C reaches this process, which stops them in order
         node = spawn(
-            [*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
+            [*module_command("panel_rig.ros.rig_node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
              "--params-file", str(ROOT / "config" / "rig.yaml"), "-p", "tunnel.time_constant_s:=0.3",
              "-p", f"control.fast_delay_s:={delay_ms * 1e-3}", "-p", "fast_max_realtime_factor:=5.0",
              "-p", "diagnostics_rate_hz:=5.0", "-p", "record:=true", "-p", f"bag_dir:={bag_dir}",

@@ -77,7 +77,7 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
     before = {p.name for p in bag_dir.glob("rig_*")}
     t0 = time.monotonic()
     node_log = out / f"{run}_node.log"
-    node_cmd = [*module_command("panel_rig.ros.node"), "--fast", "--params",
+    node_cmd = [*module_command("panel_rig.ros.rig_node"), "--fast", "--params",
                 str(ROOT / "config" / "tang_dowell_2002.yaml"), "--ros-args", "-r", "__ns:=/rig",
                 "--params-file", str(ROOT / "config" / "rig.yaml"),
                 "-p", "record:=true", "-p", f"bag_dir:={bag_dir}", "-p", f"rerun:=save:{rrd}",

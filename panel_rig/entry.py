@@ -29,7 +29,7 @@ def panel_rig() -> int:
 
 
 def rig_node() -> int:
-    return launch("panel_rig.ros.node", "rig_node")
+    return launch("panel_rig.ros.rig_node", "rig_node")
 
 
 def rig_operator() -> int:

@@ -1,6 +1,6 @@
 """``panel-rig flutter-test``: the automatic flutter-clearance procedure on the live rig node, turbulence on.
 
-Default (live): the command starts the rig node (``python -m panel_rig.ros.node --fast``, the program a user
+Default (live): the command starts the rig node (``python -m panel_rig.ros.rig_node --fast``, the program a user
 runs) as a subprocess in a private ROS domain (a random ``ROS_DOMAIN_ID``, discovery limited to this host) with
 the run's physics, recording a bag, the flutter monitor on and its hold engaged, and drives it over topics with
 :class:`panel_rig.ros.flutter_client.FlutterTestClient`: airspeed set-points on ``/rig/airspeed_cmd``, one
@@ -76,7 +76,7 @@ class ShapeSink:
     from its shape timer; without this the in-process test's panel-shape view stayed empty). The strip is the
     node's: the rigid airfoil at z = 0, then the panel (``SHAPE_POINTS`` points, its modal shape at the sample)."""
 
-    SHAPE_POINTS = 31  # as panel_rig.ros.node.SHAPE_POINTS (not imported: that module needs rclpy)
+    SHAPE_POINTS = 31  # as panel_rig.ros.publishing.SHAPE_POINTS (not imported: that module needs rclpy)
     N_AIRFOIL = 5
 
     def __init__(self, viz: Any, rig: Any, cfg: Any, period_s: float = 0.1) -> None:

@@ -286,7 +286,7 @@ def node_run(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) 
     """Node in fast mode (stiffness variant, recording + live Rerun): 11.3 m/s, a tap, 30 s, SIGINT."""
     tmp = tmp_path_factory.mktemp("node_run")
     env = ros_env
-    cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+    cmd = [sys.executable, "-m", "panel_rig.ros.rig_node", "--fast", "--ros-args", "-r", "__ns:=/rig",
            "-p", "model.variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
            "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}"]
     client = _Client(int(env["ROS_DOMAIN_ID"]))

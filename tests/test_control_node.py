@@ -120,7 +120,7 @@ def test_closed_loop_over_topics(ros_env: dict[str, str], model: Any, tmp_path: 
     u_f = design.open_loop_flutter_mps
     client = Client(int(ros_env["ROS_DOMAIN_ID"]))
     node = subprocess.Popen(
-        [PYTHON, "-m", "panel_rig.ros.node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+        [PYTHON, "-m", "panel_rig.ros.rig_node", "--fast", "--ros-args", "-r", "__ns:=/rig",
          "-p", "fast_max_realtime_factor:=5.0", "-p", f"control.fast_delay_s:={FAST_DELAY_S}",
          "-p", "model.variant:=full", "-p", "tunnel.time_constant_s:=0.3", "-p", "diagnostics_rate_hz:=5.0",
          "-p", f"safety.max_tip_w_over_L:={TIP_LIMIT}", "-p", f"control.timeout_s:={TIMEOUT_S}"],
@@ -277,7 +277,7 @@ def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -
     killing the controller trips the watchdog. The tunnel is off: this checks the plumbing, not the suppression."""
     client = Client(int(ros_env["ROS_DOMAIN_ID"]))
     node = subprocess.Popen(
-        [PYTHON, "-m", "panel_rig.ros.node", "--ros-args", "-r", "__ns:=/rig", "-p", "diagnostics_rate_hz:=5.0",
+        [PYTHON, "-m", "panel_rig.ros.rig_node", "--ros-args", "-r", "__ns:=/rig", "-p", "diagnostics_rate_hz:=5.0",
          "-p", f"control.timeout_s:={TIMEOUT_S}"], env=ros_env, cwd=ROOT, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True)
     ctl = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",

@@ -69,7 +69,7 @@ def test_fast_wait_for_command_starts_the_clock_with_the_first_command(ros_env: 
 
     from panel_rig.processes import module_command, stop
 
-    node = subprocess.Popen([*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
+    node = subprocess.Popen([*module_command("panel_rig.ros.rig_node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
                              "-p", "fast_wait_for_command:=true", "-p", "diagnostics_rate_hz:=10.0"],
                             env=ros_env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctx = rclpy.Context()

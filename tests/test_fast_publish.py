@@ -229,7 +229,8 @@ def test_fast_node_records_every_reading_and_the_shape_of_each_sample(tmp_path: 
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode, spin
+    from panel_rig.ros.node import FAST_MAX_BLOCK_PERIODS, RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
@@ -286,7 +287,8 @@ def test_fast_node_holds_its_realtime_factor_cap(ros_env: dict[str, str]) -> Non
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     cap = 4.0
     ctx = rclpy.Context()
@@ -336,8 +338,8 @@ def test_late_real_time_tick_publishes_the_samples_it_owes(ros_env: dict[str, st
     node = RigNode(context=ctx, parameter_overrides=[Parameter("fast", value=False),
                                                      Parameter("model.variant", value="full")])
     published: list[np.ndarray] = []
-    publish = node._publish_block
-    node._publish_block = lambda block: (published.append(block.time_s.copy()), publish(block))[1]  # type: ignore
+    publish = node.publication.publish_block
+    node.publication.publish_block = lambda block: (published.append(block.time_s.copy()), publish(block))[1]  # type: ignore
     try:  # no executor spins: the timer never fires, the test drives the ticks
         for wall_s in (1000.002, 1000.004, 1000.0141):  # on time, on time, 10.1 ms late
             clock[0] = wall_s
@@ -363,7 +365,8 @@ def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[
     from rclpy.parameter import Parameter
 
     from panel_rig.recording import verify_bag
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
@@ -399,7 +402,8 @@ def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_p
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from panel_rig.ros.node import RigNode, spin
+    from panel_rig.ros.node import RigNode
+    from panel_rig.ros.rig_node import spin
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
@@ -407,9 +411,9 @@ def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_p
         Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
         Parameter("bag_dir", value=str(tmp_path))])
     published: list = []
-    publish = node._publish
-    node._publish = lambda pub, msg, *a, **k: (published.append(msg) if pub is node.pub_diag else None,  # type: ignore
-                                               publish(pub, msg, *a, **k))[1]
+    publish = node.publication.publish
+    node.publication.publish = lambda pub, msg, *a, **k: (  # type: ignore[method-assign]
+        published.append(msg) if pub is node.pub_diag else None, publish(pub, msg, *a, **k))[1]
 
     def full(*args: object, **kwargs: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
@@ -420,7 +424,7 @@ def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_p
         node.publish_diagnostics()
         spin(node, executor, lambda: node.rig.time_s > 0.5)
         node.publish_diagnostics()
-        node._recorders[0].write_block = full  # type: ignore[method-assign]
+        node.recording.recorders[0].write_block = full  # type: ignore[method-assign]
         spin(node, executor, lambda: node.rig.time_s > 1.0)
         node.publish_diagnostics()
         executor.shutdown()

@@ -26,7 +26,7 @@ def test_node_publishes_one_monitor_message_per_plateau(tmp_path, ros_env):
     from panel_rig.ros.operator import Operator
 
     env = ros_env  # this process is on the same private graph: the operator discovers the node
-    cmd = [sys.executable, "-m", "panel_rig.ros.node", "--fast", "--params", str(ROOT / "config/tang_dowell_2002.yaml"),
+    cmd = [sys.executable, "-m", "panel_rig.ros.rig_node", "--fast", "--params", str(ROOT / "config/tang_dowell_2002.yaml"),
            "--ros-args", "-r", "__ns:=/rig", "--params-file", str(ROOT / "config/rig.yaml"), "-p", "fast:=true",
            "-p", "flutter_monitor:=true", "-p", "model.variant:=full", "-p", "flutter_test.hold:=true",
            "-p", f"flutter_test.settle_s:={SETTLE_S}", "-p", f"flutter_test.dwell_s:={DWELL_S}"]

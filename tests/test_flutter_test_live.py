@@ -243,7 +243,7 @@ def test_flutter_test_refuses_a_domain_where_another_rig_takes_its_commands(ros_
 
     from panel_rig.processes import module_command, stop
 
-    other = subprocess.Popen([*module_command("panel_rig.ros.node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
+    other = subprocess.Popen([*module_command("panel_rig.ros.rig_node"), "--fast", "--ros-args", "-r", "__ns:=/rig",
                               "-p", "fast_max_realtime_factor:=1.0"], env=ros_env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
     ctx = rclpy.Context()

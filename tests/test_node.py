@@ -50,7 +50,7 @@ FAST_CAP = 8.0  # fast node's real-time factor cap, so this Python client receiv
 
 
 LAUNCHER = (
-    "import sys; from panel_rig.ros.node import main; "
+    "import sys; from panel_rig.ros.rig_node import main; "
     "sys.exit(main(sys.argv[1:]))"
 )
 
@@ -821,7 +821,7 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
 def test_a_value_typed_with_dash_p_wins_over_the_params_files():
     """`panel-rig run --params physics.yaml --ros-args -p structure.modes:=4` started with the file's 3 modes: the
     files were given to the node as overrides, which win over rcl's -p values. The files now yield to -p."""
-    from panel_rig.ros.node import command_line_parameter_names, overrides_from_files, start_overrides
+    from panel_rig.ros.rig_node import command_line_parameter_names, overrides_from_files, start_overrides
 
     physics = str(Path(__file__).parents[1] / "config" / "tang_dowell_2002.yaml")
     argv = ["--params", physics, "--ros-args", "-r", "__ns:=/rig", "-p", "structure.modes:=4",
@@ -837,7 +837,7 @@ def test_a_value_typed_with_dash_p_wins_over_the_params_files():
 def test_params_file_numbers_in_e_notation_are_numbers(tmp_path: Path) -> None:
     """`publish_rate_hz: 1e3` in a --params file was refused as a STRING (YAML 1.1 reads it as text) while the same
     file through --params-file (rcl's parser) was taken as 1000.0; now both read the number."""
-    from panel_rig.ros.node import overrides_from_files
+    from panel_rig.ros.rig_node import overrides_from_files
 
     f = tmp_path / "p.yaml"
     f.write_text("panel_rig:\n  ros__parameters:\n    publish_rate_hz: 1e3\n    panel:\n      thickness_m: 3e-4\n"

@@ -99,7 +99,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     # the monitor's SVDs are <= ~160 x 160: BLAS threads only contend (measured 3-7x slower per point with the
     # default threads on the 2 shared cores, docs/validation.md section 10); the user's own setting wins
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    cmd = [*module_command("panel_rig.ros.node"), "--fast", "--params", str(params_file),
+    cmd = [*module_command("panel_rig.ros.rig_node"), "--fast", "--params", str(params_file),
            "--ros-args", "-r", f"__ns:={NAMESPACE}"]
     log_path = run_dir / "node.log"
     with open(log_path, "w") as log:  # its own session: a Ctrl-C in the terminal reaches this process only, which

@@ -1,25 +1,25 @@
-"""``rig_node``: the rclpy adapter around :class:`panel_rig.rig.rig.Rig` (logic lives in ``panel_rig.rig``).
+"""The rig node, :class:`RigNode`: the rclpy adapter around :class:`panel_rig.rig.rig.Rig` (logic lives in
+``panel_rig.rig``); the program that runs it, ``rig_node``, is :mod:`panel_rig.ros.rig_node`.
 
-Run: ``rig_node --ros-args -r __ns:=/rig --params-file config/tang_dowell_2002.yaml``.
 Real-time mode (default): a timer at ``publish_rate_hz`` advances the rig in whole physics steps to
-the steady clock. Fast mode (``fast: true``): steps as fast as possible, publishes ``/clock``.
+the steady clock. Fast mode (``fast: true``): steps as fast as possible, publishes ``/clock``. The node declares
+its topics, services, parameters and timers here and hands the work on: readings and shapes go out through a
+:class:`~panel_rig.ros.publishing.ReadingPublisher` (and a :class:`~panel_rig.ros.publishing.Recording`), step
+counts and the fast mode's holds come from :mod:`panel_rig.ros.pacing`, the parameter checks from
+:mod:`panel_rig.ros.params` and the /diagnostics values from :mod:`panel_rig.ros.diagnostics`.
 """
 
 from __future__ import annotations
 
-import inspect
 import math
-import sys
-import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -27,50 +27,38 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from panel_rig.config import (
-    SCHEMA,
-    ConfigError,
-    PanelConfig,
-    config_from_flat,
-    float_from_text,
-    number_if_text,
-    read_params_file,
-)
+from panel_rig.config import SCHEMA, ConfigError, PanelConfig, config_from_flat
 from panel_rig.rig.control import ControlSettings
-from panel_rig.rig.reading import Reading, ReadingBlock
 from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_extras
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
+from panel_rig.ros.diagnostics import diagnostic_level, diagnostic_values, jitter_p99_ms, run_stats
+from panel_rig.ros.pacing import ClientHolds, step_counts, tick_counts
 from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
     NODE_PARAMS,
+    as_declared,
     check_node_params,
-    combination_problems,
+    live_change_problem,
     parameter_table,
     publish_rate_problem,
 )
-from panel_rig.ros.session import ros_arguments_problem, ros_rules, ros_session
+from panel_rig.ros.publishing import SHAPE_POINTS, ReadingPublisher, ReadingTopics, Recording
 from panel_rig.topics import REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-SHAPE_POINTS = 31
-FAST_SPIN_PERIOD_S = 0.005  # fast mode: wall time between executor passes (commands, services, diagnostics) ...
-FAST_SPIN_SHARE = 0.05  # ... at least; at most this share of the wall time in passes (one costs ~0.3-0.6 ms here)
-FAST_SPIN_MAX_PERIOD_S = 0.02  # ... and never less often than this
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
-HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
 StepperFactory = Callable[[PanelConfig, str, str], StepperLike]
 
 
@@ -119,14 +107,10 @@ class RigNode(Node):
                        control=control, **extras)
         self.dt_s = self.rig.dt_s
         self._publish_period_s = 1.0 / p["publish_rate_hz"]
-        self._shape_period_s = 1.0 / p["shape_rate_hz"]
         self._max_lag_s = p["max_lag_s"]
         self.fast_max_rtf: float = p["fast_max_realtime_factor"]
         self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
-        self._x_over_L = np.linspace(0.0, 1.0, SHAPE_POINTS)
-        self._trailing_edge_x_m = self.cfg.airfoil_length_m + self.cfg.panel_length_m
-        self._recorders: list[Any] = []
-        self._record_errors, self._diag_record_errors, self._last_record_error = 0, 0, ""
+        self.recording = Recording(self.get_logger())
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
 
@@ -139,15 +123,14 @@ class RigNode(Node):
         self.pub_shape = self.create_publisher(Marker, "panel_shape", LATEST_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", COMMAND_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", LATEST_QOS) if self.fast else None
-        self._msgs = messages.ReadingMessages(self._names, self._trailing_edge_x_m, self.cfg.panel_length_m)
-        self._shape_cdr = messages.ShapeCdr(self.cfg.airfoil_length_m, self.cfg.panel_length_m, self._x_over_L)
-        marker = messages.shape_msg(0, self.cfg.airfoil_length_m, self.cfg.panel_length_m, np.zeros(SHAPE_POINTS),
-                                    self._x_over_L)
-        self._shape_x_m = np.array([pt.x for pt in marker.points])  # the Rerun strip: airfoil, then the panel
-        self._full = {pub: self._topic_name(pub.topic_name) for pub in (self.pub_tip, self.pub_modal, self.pub_airspeed,
-                                                                        self.pub_shape, self.pub_diag, self.pub_truth)}
+        topics = ReadingTopics(self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_shape,
+                               self.pub_clock)
+        self.publication = ReadingPublisher(self.rig, self.cfg, self._names, topics, self.recording, rerun=self._rerun,
+                                            logger=self.get_logger(), shape_period_s=1.0 / p["shape_rate_hz"])
+        recorded = [self.pub_tip, self.pub_modal, self.pub_airspeed, self.pub_shape, self.pub_diag, self.pub_truth]
         if self._flutter_monitor is not None:  # created with the sinks: recorded under its full name too
-            self._full[self.pub_flutter] = self._topic_name(self.pub_flutter.topic_name)
+            recorded.append(self.pub_flutter)
+        self.recording.topics.update({pub: self._topic_name(pub.topic_name) for pub in recorded})
         commands = {
             "airspeed_cmd": self.rig.command_airspeed,
             "shaker/force_cmd": self.rig.command_force,
@@ -164,9 +147,11 @@ class RigNode(Node):
 
         # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
         self._diag_rejected = 0
+        self._diag_record_errors = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
-        self._stamp_offset_ns = 0 if self.fast else self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
+        if not self.fast:
+            self.publication.stamp_offset_ns = self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
         self._wall0 = time.monotonic()
         self._wall_anchor = self._wall0
         self._sim_anchor = self.rig.time_s
@@ -176,13 +161,7 @@ class RigNode(Node):
         self._window_intervals: list[float] = []
         self._diag_wall = self._wall0
         self._diag_sim = self.rig.time_s
-        self._next_shape_s = 0.0
         self._fast_next_s = self.rig.time_s
-        # a stepper that draws the shape of any sample's q lets fast mode march whole blocks past shape samples
-        try:
-            self._shape_of_q = "q" in inspect.signature(self.rig.stepper.shape_w_over_L).parameters
-        except (TypeError, ValueError, AttributeError):
-            self._shape_of_q = False
         self._pending: dict[str, Any] = {}
         self._tick_timer = None if self.fast else self.create_timer(self._publish_period_s, self._tick)
         self._diag_timer = self.create_timer(1.0 / p["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -239,21 +218,8 @@ class RigNode(Node):
             )
         return cfg, node_values
 
-    def _as_declared(self, prm: Parameter) -> Parameter:
-        """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
-        (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
-        as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
-        entry = self._table.get(prm.name)
-        if entry is None or not isinstance(entry[0], float):
-            return prm
-        if prm.type_ == Parameter.Type.INTEGER:
-            return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
-        if prm.type_ == Parameter.Type.STRING and (number := float_from_text(prm.value)) is not None:
-            return Parameter(prm.name, Parameter.Type.DOUBLE, number)
-        return prm
-
     def _before_set_parameters(self, params: list[Parameter]) -> list[Parameter]:
-        return [self._as_declared(prm) for prm in params]
+        return [as_declared(self._table, prm) for prm in params]
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
@@ -267,31 +233,14 @@ class RigNode(Node):
         """A read-only parameter (ours or rclpy's own) given the value and type it has."""
         if not self.has_parameter(prm.name) or not self.describe_parameter(prm.name).read_only:
             return False
-        prm, current = self._as_declared(prm), self.get_parameter(prm.name)
+        prm, current = as_declared(self._table, prm), self.get_parameter(prm.name)
         return prm.type_ == current.type_ and prm.value == current.value
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate a live change: physics and structural parameters are refused with a reason."""
-        for prm in params:
-            if prm.name == "use_sim_time" and prm.value != self.get_parameter("use_sim_time").value:
-                # rclpy takes it live, and a real-time node then waits for a /clock nobody publishes: frozen
-                return SetParametersResult(successful=False, reason="use_sim_time is read at start: restart the "
-                                           "node with -p use_sim_time:=true (a fast node publishes /clock itself)")
-            spec = NODE_PARAMS.get(prm.name)
-            if spec is None:
-                continue
-            reason = spec.check(prm.value)
-            if reason:
-                return SetParametersResult(successful=False, reason=f"{prm.name}: {reason}")
-            if prm.name == "publish_rate_hz":
-                reason = publish_rate_problem(float(prm.value), self.rig.dt_s)
-                if reason:
-                    return SetParametersResult(successful=False, reason=reason)
-        after = {name: self.get_parameter(name).value for name in ("control.fast_delay_s", "control.timeout_s")}
-        after.update({prm.name: prm.value for prm in params if prm.name in after})
-        problems = combination_problems(after)
-        if problems:
-            return SetParametersResult(successful=False, reason=problems[0])
+        reason = live_change_problem(params, lambda name: self.get_parameter(name).value, self.rig.dt_s)
+        if reason is not None:
+            return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
     def _after_set_parameters(self, params: list[Parameter]) -> None:
@@ -334,7 +283,7 @@ class RigNode(Node):
                 self._tick_timer = self.create_timer(self._publish_period_s, self._tick)
                 self._last_tick = None
         if "shape_rate_hz" in pending:
-            self._shape_period_s = 1.0 / pending["shape_rate_hz"]
+            self.publication.shape_period_s = 1.0 / pending["shape_rate_hz"]
         if "diagnostics_rate_hz" in pending:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = self.create_timer(1.0 / pending["diagnostics_rate_hz"], self.publish_diagnostics)
@@ -354,11 +303,8 @@ class RigNode(Node):
                                                        settle_s=p["flutter_test.settle_s"],
                                                        dwell_s=p["flutter_test.dwell_s"])
             self.rig.sinks.append(self._flutter_monitor)
-        self._flutter_hold = bool(p["flutter_test.hold"] and p["fast"] and self._flutter_monitor is not None)
-        # fast_wait_for_command: released by the first command, or after HOLD_TIMEOUT_S of wall time (logged)
-        self._start_hold_until: float | None = time.monotonic() + HOLD_TIMEOUT_S if (
-            p["fast_wait_for_command"] and p["fast"]) else None
-        self._hold_since: float | None = None
+        self.holds = ClientHolds(self.rig, self.get_logger(), wait_for_command=p["fast_wait_for_command"] and p["fast"],
+                                 flutter_hold=p["flutter_test.hold"] and p["fast"], flutter_monitor=self._flutter_monitor)
         # asked for and not possible: the node does not start (a run believed recorded must not go unrecorded)
         self._rerun: Any = None
         if p["rerun"] != "none":
@@ -379,7 +325,7 @@ class RigNode(Node):
                 from panel_rig.recording import BagWriter, fresh_bag_dir
 
                 writer = BagWriter(fresh_bag_dir(Path(p["bag_dir"]), "rig"))
-                self._recorders.append(writer)
+                self.recording.recorders.append(writer)
                 writer.write_parameters({prm.name: prm.value for prm in self._parameters.values()})
             except Exception as exc:  # noqa: BLE001 (RecordingError, OSError, no mcap)
                 self.close()
@@ -395,35 +341,12 @@ class RigNode(Node):
         plateau = {"point_index": mon.published, "plateau_start_s": mon.plateau_start_s, "settle_s": mon.settle_s,
                    "dwell_s": mon.dwell_s, "sim_time_s": time_s, "flutter_band_low_hz": band[0],
                    "flutter_band_high_hz": band[1], "identify_wall_s": mon.last_wall_s}
-        stamp = self._stamp_ns(time_s)
-        self._publish(self.pub_flutter, monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered,
-                                                    plateau=plateau), stamp, qos="reliable")
+        stamp = self.publication.stamp_ns(time_s)
+        msg = monitor_msg(stamp, point, decision, mon.settings.margin, fluttered=fluttered, plateau=plateau)
+        self.publication.publish(self.pub_flutter, msg, stamp, qos="reliable")
         if self._rerun is not None and not fluttered:
             self._rerun.log_flutter_point(time_s, self._flutter_monitor.points, decision,
                                           self._flutter_monitor.settings.margin)
-
-    def _stamp_ns(self, time_s: float) -> int:
-        """The stamp of simulated time ``time_s``: itself in fast mode (with /clock), the ROS clock in real time."""
-        return messages.stamp_ns(time_s) + self._stamp_offset_ns
-
-    def _publish(self, pub: Any, msg: Any, stamp_ns: int, qos: str = "sensor") -> None:
-        """Serialise once; the same bytes go to the topic and to every recorder."""
-        self._publish_bytes(pub, msg, serialize_message(msg), stamp_ns, qos)
-
-    def _publish_bytes(self, pub: Any, msg: Any, data: bytes, stamp_ns: int, qos: str = "sensor") -> None:
-        pub.publish(data)
-        self._record(lambda rec: rec.write(self._full[pub], msg, stamp_ns, qos=qos, data=data))
-
-    def _record(self, write: Callable[[Any], Any]) -> None:
-        """``write(recorder)`` for every recorder. A failure (a full disk) is logged, counted and shown in
-        /diagnostics (level ERROR while it goes on); the rig carries on."""
-        for rec in self._recorders:
-            try:
-                write(rec)
-            except Exception as exc:  # noqa: BLE001
-                self._record_errors += 1
-                self._last_record_error = str(exc)
-                self.get_logger().error(f"recording failed: {exc}", throttle_duration_sec=5.0)
 
     def _topic_name(self, name: str) -> str:
         return name if name.startswith("/") else f"{self._topic_prefix}/{name}"
@@ -442,13 +365,13 @@ class RigNode(Node):
     def _on_control(self, msg: WrenchStamped) -> None:
         """Age = now - stamp in the rig's time base (real time: the ROS clock; fast: simulated time); the command
         acts from the simulated instant of its arrival."""
-        self._command_arrived()
+        self.holds.command_arrived()
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        stamp_s = (stamp_ns - self._stamp_offset_ns) * 1e-9
+        stamp_s = (stamp_ns - self.publication.stamp_offset_ns) * 1e-9
         if self.fast:  # lock-step: the rig waited for this answer; the transport latency is emulated
             arrival_s = self.rig.time_s + self._fast_delay_s
         else:
-            arrival_s = (self.get_clock().now().nanoseconds - self._stamp_offset_ns) * 1e-9
+            arrival_s = (self.get_clock().now().nanoseconds - self.publication.stamp_offset_ns) * 1e-9
         force = msg.wrench.force.z
         result = self.rig.command_control(force, stamp_s, arrival_s)
         if result.accepted and self.fast:
@@ -479,64 +402,6 @@ class RigNode(Node):
                 return
             executor.spin_once(timeout_sec=0.002)
 
-    def waiting_for_command(self) -> bool:
-        """Fast mode with ``fast_wait_for_command``: true until the first command arrives, so a session's clock
-        starts with its operator (the fast node ran ~40 simulated s at 0 m/s while one was discovered)."""
-        if self._start_hold_until is None:
-            return False
-        if time.monotonic() > self._start_hold_until:
-            self._start_hold_until = None
-            self.get_logger().warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway")
-            return False
-        return True
-
-    def _command_arrived(self) -> None:
-        if self._start_hold_until is not None:
-            self._start_hold_until = None
-            self.get_logger().info(f"first command: simulated time starts at t = {self.rig.time_s:.3f} s")
-
-    def flutter_holding(self) -> bool:
-        """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
-        point until the next one (the flutter-test client connects, then decides; simulated time waits, so results
-        do not depend on how fast the client is, and a run is reproducible from its seed). A client silent for
-        HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
-        if not (self._flutter_hold and self._flutter_monitor.waiting):
-            self._hold_since = None
-            return False
-        now = time.monotonic()
-        if self._hold_since is None:
-            self._hold_since = now
-        if now - self._hold_since > HOLD_TIMEOUT_S:
-            self._flutter_hold = False
-            self.get_logger().warning(f"no airspeed command for {HOLD_TIMEOUT_S:g} s (wall) after a test point: "
-                                      f"flutter-test hold released at t = {self.rig.time_s:.3f} s")
-            return False
-        return True
-
-    def _control_diagnostics(self) -> dict[str, Any]:
-        """Control actuator state and command ages (mean, p99, max over this diagnostics period; mean, p99 over the
-        last 100 000 commands)."""
-        c = self.rig.control
-        window = c.latency_stats_ms(c.take_window())
-        total = c.latency_stats_ms()
-
-        def ms(x: float) -> str:
-            return f"{x:.3f}" if math.isfinite(x) else "nan"
-
-        return {
-            "control_state": c.state,
-            "control_lockstep": self._lockstep,
-            "control_force_npm": f"{c.force_npm:.6f}",
-            "control_commands": c.commands,
-            "control_timeouts": c.timeouts,
-            "control_latency_mean_ms": ms(window["mean"]),
-            "control_latency_p99_ms": ms(window["p99"]),
-            "control_latency_max_ms": ms(window["max"]),
-            "control_latency_n": window["n"],
-            "control_latency_mean_total_ms": ms(total["mean"]),
-            "control_latency_p99_total_ms": ms(total["p99"]),
-        }
-
     # ---- commands and services -----------------------------------------------------------------------
     def _command_callback(self, topic: str, command: Callable[[float], Any]) -> Callable[[Float64], None]:
         """The subscription callback of one command topic: apply, record, and on a refusal warn and echo the
@@ -545,7 +410,7 @@ class RigNode(Node):
         echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, COMMAND_QOS)
 
         def callback(msg: Float64) -> None:
-            self._command_arrived()
+            self.holds.command_arrived()
             result = command(msg.data)
             self._record_command(full, msg, result.accepted)
             if not result.accepted:
@@ -565,10 +430,11 @@ class RigNode(Node):
     def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
         """Every command received goes into the recording: on its own topic if the rig took it, else on
         ``<topic>/rejected`` (a replay or an analysis of the bag then sees the commands that acted)."""
-        if not self._recorders:
+        if not self.recording.active:
             return
         name = topic if accepted else topic + REJECTED_SUFFIX
-        self._record(lambda rec: rec.write(name, msg, self._stamp_ns(self.rig.time_s), qos="reliable"))
+        stamp = self.publication.stamp_ns(self.rig.time_s)
+        self.recording.record(lambda rec: rec.write(name, msg, stamp, qos="reliable"))
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         was = self.rig.state
@@ -606,32 +472,18 @@ class RigNode(Node):
                 and time.monotonic() < deadline:
             pass
         if time.monotonic() < deadline:  # on time (as nearly always): one compiled call up to the clock
-            self._publish_block(self.rig.advance_samples(self._tick_counts(target)))
+            counts = tick_counts(self.rig.time_s, self._last_sample_s, target, self._publish_period_s, self.dt_s)
+            self.publication.publish_block(self.rig.advance_samples(counts))
         else:
-            self.publish_readings()
+            self.publication.publish_readings()
         self._last_sample_s = self.rig.time_s
         lag = target - self.rig.time_s
         if lag > self._max_lag_s:
             # cannot catch up within the bound: count it and let simulated time slip
             self.rig.note_overrun()
             self._wall_anchor += lag
-            self._stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
+            self.publication.stamp_offset_ns += round(lag * 1e9)  # stamps stay on the ROS clock
             self.get_logger().warning(f"overrun: {lag * 1e3:.1f} ms behind the clock", throttle_duration_sec=1.0)
-
-    def _tick_counts(self, target_s: float) -> list[int]:
-        """Steps before each sample of a real-time tick: one publish period after the last sample while that
-        leaves more than half a period to ``target_s`` (the samples a late tick owes), then ``target_s``."""
-        period, dt = self._publish_period_s, self.dt_s
-        times, last = [], max(self._last_sample_s, self.rig.time_s)
-        while last + 1.5 * period <= target_s:
-            last += period
-            times.append(last)
-        counts, t = [], self.rig.time_s
-        for t_k in (*times, target_s):
-            n = max(math.floor((t_k - t) / dt + 1e-6), 0)
-            counts.append(n)
-            t += n * dt
-        return counts
 
     def fast_iteration(self) -> None:
         """Fast mode: march up to FAST_MAX_BLOCK_PERIODS publish periods in one block (up to the next shape sample
@@ -640,347 +492,38 @@ class RigNode(Node):
         periods = 1 if self._lockstep else FAST_MAX_BLOCK_PERIODS  # a controller in lock-step: one period
         # blocks end at the next shape sample if the shape needs the stepper's own state, and while anyone subscribes
         # to the readings: a best-effort subscriber (depth 5) keeps up with bursts of ~17 periods, not of 64
-        if not self._shape_of_q or self._readings_subscribed():
-            periods = min(max(math.ceil((self._next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
-        counts, t = [], self.rig.time_s
-        for k in range(1, periods + 1):
-            target = start + k * self._publish_period_s
-            n = max(math.floor((target - t) / self.dt_s + 1e-6), 0)
-            counts.append(n)
-            t += n * self.dt_s
+        out = self.publication
+        if not out.shape_of_q or out.readings_subscribed():
+            periods = min(max(math.ceil((out.next_shape_s - start) / self._publish_period_s - 1e-9), 1), periods)
+        targets = [start + k * self._publish_period_s for k in range(1, periods + 1)]
+        counts = step_counts(self.rig.time_s, targets, self.dt_s)
         self._fast_next_s = start + periods * self._publish_period_s
-        self._publish_block(self.rig.advance_samples(counts))
-
-    def _readings_subscribed(self) -> bool:
-        pubs = (self.pub_tip, self.pub_truth, self.pub_modal, self.pub_airspeed, self.pub_clock)
-        return any(pub is not None and pub.get_subscription_count() for pub in pubs)
-
-    def publish_readings(self) -> Reading:
-        """The current reading to topics and sinks (real-time tick); the shape at its own rate."""
-        r = self.rig.reading()
-        self._publish_block(ReadingBlock.of([r]))
-        return r
-
-    def _publish_block(self, block: ReadingBlock) -> None:
-        """Samples to sinks, topics and recorders (one serialisation, one bag write per block), then the shape of
-        each sample that is due (a recorded block's shapes follow its readings: log times overlap by at most one
-        block, which MCAP's per-chunk indexes and log-time-ordered readers take as they come)."""
-        if not len(block):
-            return
-        self.rig.emit_block(block)
-        msgs, recording = self._msgs, bool(self._recorders)
-        pubs = ((self.pub_tip, msgs.tip), (self.pub_modal, msgs.modal), (self.pub_airspeed, msgs.airspeed),
-                (self.pub_truth, msgs.truth))
-        encoded_block = msgs.encode_block(block, self._stamp_offset_ns)
-        if encoded_block is not None:
-            self._publish_encoded(pubs, encoded_block)
-        else:
-            self._publish_each(pubs, block, recording)
-        self._publish_due_shapes(block)
-
-    def _publish_due_shapes(self, block: ReadingBlock) -> None:
-        """The shape at each sample that reaches the next shape time (of that sample's q if the stepper can draw
-        it, else only at the block's last sample: such blocks end at the shape samples)."""
-        times, n, due = block.time_s, len(block), []
-        while True:
-            k = int(np.searchsorted(times, self._next_shape_s - 1e-9, side="left"))
-            if k >= n:
-                break
-            k = k if self._shape_of_q else n - 1
-            due.append(k)
-            self._next_shape_s = float(times[k]) + self._shape_period_s
-            if not self._shape_of_q:
-                break
-        if not due:
-            return
-        aborted = block.state == ABORTED
-        if self._shape_of_q and self._shape_cdr.ok and len(due) > 1:
-            self._publish_shapes(times[due], block.q[due], aborted)
-            return
-        for k in due:
-            self._publish_shape(float(times[k]), aborted, block.q[k] if self._shape_of_q else None)
-
-    def _publish_shapes(self, times_s: np.ndarray, q: np.ndarray, aborted: bool) -> None:
-        """Several shapes (of modal coordinates q, one row each) at once: drawn together, one bag write, published
-        one by one if anyone subscribes (a volatile depth-1 topic: with no subscriber a publish reaches nobody)."""
-        z_m = np.asarray(self.rig.shape_w_over_L(self._x_over_L, q), dtype=float) * self.cfg.panel_length_m
-        stamps = np.array([self._stamp_ns(float(t)) for t in times_s], dtype=np.int64)
-        rows = self._shape_cdr.pack_block(stamps, z_m, aborted)
-        self._record(lambda rec: rec.write_block([(self._full[self.pub_shape], self._shape_cdr.message(aborted))],
-                                                 stamps, [rows], qos="reliable"))
-        if self.pub_shape.get_subscription_count():
-            for row in messages.EncodedBlock.rows(rows):
-                self.pub_shape.publish(row)
-        if self._rerun is not None:
-            for t, z in zip(times_s, z_m):
-                self._queue_rerun_shape(float(t), z)
-
-    def _publish_encoded(self, pubs: tuple[tuple[Any, Any], ...], enc: messages.EncodedBlock) -> None:
-        """A block serialised once with numpy: every recorder gets all of it in one write; each topic gets its
-        messages (sample by sample, topics in the same order as before) if anyone subscribes to it: with no
-        matched subscription (best-effort/volatile sensor QoS; /clock volatile) a publish reaches nobody."""
-        self._record(lambda rec: rec.write_block([(self._full[pub], msg) for pub, msg in pubs], enc.stamps_ns,
-                                                 enc.payloads))
-        streams = [(pub.publish, enc.rows(data)) for (pub, _), data in zip(pubs, enc.payloads)
-                   if pub.get_subscription_count()]
-        if self.pub_clock is not None and self.pub_clock.get_subscription_count():
-            streams.append((self.pub_clock.publish, enc.rows(enc.clock)))
-        if not streams:
-            return
-        for row in zip(*(rows for _, rows in streams)):
-            for (publish, _), data in zip(streams, row):
-                publish(data)
-
-    def _publish_each(self, pubs: tuple[tuple[Any, Any], ...], block: ReadingBlock, recording: bool) -> None:
-        """Message by message (the layouts are not fixed: rclpy serialises each)."""
-        msgs = self._msgs
-        for stamp_ns, *encoded in msgs.encode(block, self._stamp_offset_ns):
-            for (pub, msg), data in zip(pubs, encoded):
-                if recording:
-                    self._publish_bytes(pub, msg, data, stamp_ns)
-                else:
-                    pub.publish(data)
-            if self.pub_clock is not None:
-                self.pub_clock.publish(msgs.clock_bytes(stamp_ns))
-
-    def _publish_shape(self, t: float, aborted: bool, q: np.ndarray | None = None) -> None:
-        w = self.rig.shape_w_over_L(self._x_over_L, q)
-        stamp = self._stamp_ns(t)
-        z_m = np.asarray(w, dtype=float) * self.cfg.panel_length_m
-        if self._shape_cdr.ok:  # the Marker's CDR from its template (serialize_message of 36 points: ~0.3 ms)
-            self._publish_bytes(self.pub_shape, self._shape_cdr.message(aborted), self._shape_cdr.pack(stamp, z_m, aborted),
-                                stamp, qos="reliable")
-        else:
-            marker = self._msgs.shape(stamp, self.cfg.airfoil_length_m, self.cfg.panel_length_m, w, self._x_over_L,
-                                      aborted)
-            self._publish(self.pub_shape, marker, stamp, qos="reliable")
-        if self._rerun is not None:
-            self._queue_rerun_shape(t, z_m)
-
-    def _queue_rerun_shape(self, t: float, z_m: np.ndarray) -> None:
-        try:
-            z_all = np.concatenate([np.zeros(self._shape_x_m.size - z_m.size), z_m])
-            self._rerun.queue_shape(t, self._shape_x_m, np.where(np.isfinite(z_all), z_all, 0.0))
-        except Exception as exc:  # noqa: BLE001
-            self.get_logger().error(f"rerun shape failed: {exc}", throttle_duration_sec=5.0)
+        self.publication.publish_block(self.rig.advance_samples(counts))
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
-        wall = time.monotonic() - self._wall0
-        intervals = np.asarray(self.tick_intervals_s, dtype=float)
-        jitter = np.abs(intervals - self._publish_period_s) * 1e3 if intervals.size else np.zeros(1)
-        return {
-            "sim_time_s": self.rig.time_s,
-            "wall_time_s": wall,
-            "realtime_factor": self.rig.time_s / wall if wall > 0 else 0.0,
-            "overruns": self.rig.overrun_count,
-            "ticks": int(intervals.size),
-            "tick_jitter_p99_ms": float(np.percentile(jitter, 99)),
-            "tick_interval_mean_ms": float(intervals.mean() * 1e3) if intervals.size else 0.0,
-        }
+        return run_stats(self.rig, time.monotonic() - self._wall0, self.tick_intervals_s, self._publish_period_s)
 
     def publish_diagnostics(self) -> None:
         """State, real-time factor (last window), overruns, rejected commands, last rejection."""
         now = time.monotonic()
-        sim = self.rig.time_s
-        rtf = (sim - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
-        self._diag_wall, self._diag_sim = now, sim
-        window = np.asarray(self._window_intervals, dtype=float)
+        rig, recording = self.rig, self.recording
+        rtf = (rig.time_s - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
+        self._diag_wall, self._diag_sim = now, rig.time_s
+        jitter_ms = jitter_p99_ms(self._window_intervals, self._publish_period_s)
         self._window_intervals = []
-        jitter = float(np.percentile(np.abs(window - self._publish_period_s), 99) * 1e3) if window.size else 0.0
-        rig = self.rig
-        values = {
-            "state": rig.state,
-            "mode": "fast" if self.fast else "real-time",
-            "sim_time_s": f"{sim:.6f}",
-            "real_time_factor": f"{rtf:.4f}",
-            "overruns": rig.overrun_count,
-            "rejected_commands": rig.rejected_count,
-            "last_rejection": rig.last_rejection,
-            "abort_reason": rig.abort_reason,
-            "aborts": rig.abort_count,
-            "last_abort_time_s": f"{rig.abort_time_s:.6f}" if rig.abort_count else "",
-            "airspeed_setpoint_mps": f"{rig.actuator.setpoint_mps:.4f}",
-            "airspeed_mps": f"{rig.actuator.airspeed_mps:.4f}",
-            "tick_jitter_p99_ms": f"{jitter:.3f}",
-            "physics_dt_s": f"{self.dt_s:.9g}",
-            "sink_errors": rig.sink_errors,
-            "recording": ("failed" if self._record_errors else "on") if self._recorders else "off",
-            "recording_errors": self._record_errors,
-            "last_recording_error": self._last_record_error,
-            **self._control_diagnostics(),
-        }
+        values = diagnostic_values(rig, recording, fast=self.fast, rtf=rtf, jitter_ms=jitter_ms, lockstep=self._lockstep)
         rejected_now = rig.rejected_count - self._diag_rejected
         self._diag_rejected = rig.rejected_count
-        record_errors_now = self._record_errors - self._diag_record_errors
-        self._diag_record_errors = self._record_errors
-        if rig.state == ABORTED:
-            level, message = DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
-        elif record_errors_now:
-            level, message = DiagnosticStatus.ERROR, f"recording failed: {self._last_record_error}"
-        elif rejected_now:
-            level, message = DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
-        else:
-            level, message = DiagnosticStatus.OK, rig.state
-        stamp = self._stamp_ns(sim)
-        self._publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp, "reliable")
+        record_errors_now = recording.errors - self._diag_record_errors
+        self._diag_record_errors = recording.errors
+        level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error)
+        stamp = self.publication.stamp_ns(rig.time_s)
+        self.publication.publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp,
+                                 "reliable")
 
     def close(self) -> None:
         """Close recorders, then the rig's sinks (idempotent): the bag is closed first, whatever a viewer sink
         does on closing."""
-        for rec in self._recorders:
-            try:
-                rec.close()
-            except Exception as exc:  # noqa: BLE001
-                self.get_logger().error(f"closing the recording failed: {exc}")
-        self._recorders.clear()
+        self.recording.close()
         self.rig.close()
-
-
-def spin(node: RigNode, executor: SingleThreadedExecutor, should_stop: Callable[[], bool]) -> None:
-    """Run the node until ``should_stop()``: timers in real-time mode; in fast mode a stepping loop that
-    serves the executor (commands, services, diagnostics) every ``FAST_SPIN_PERIOD_S`` of wall time, or less
-    often when a pass costs more than ``FAST_SPIN_SHARE`` of that (at least every ``FAST_SPIN_MAX_PERIOD_S``).
-    With ``fast_max_realtime_factor`` > 0 it marches the next block only once the wall clock has caught up with
-    the simulated time at that factor, serving callbacks while it waits."""
-    next_spin = 0.0
-    pace = _Pace(node.rig.time_s)
-    while not should_stop() and rclpy.ok(context=node.context):
-        node.apply_pending()
-        if not node.fast:
-            executor.spin_once(timeout_sec=0.05)
-            continue
-        if node.waiting_for_command() or node.flutter_holding():  # a client to come, or deciding: callbacks only
-            executor.spin_once(timeout_sec=FAST_SPIN_PERIOD_S)
-            pace.anchor(node.rig.time_s)
-            continue
-        ahead_s = pace.ahead_s(node.rig.time_s, node.fast_max_rtf)
-        if ahead_s > 0:  # ahead of the capped clock: wait, serving callbacks, before marching on
-            executor.spin_once(timeout_sec=min(ahead_s, FAST_SPIN_PERIOD_S))
-            next_spin = time.monotonic() + FAST_SPIN_PERIOD_S
-            continue
-        node.fast_iteration()
-        node.lockstep_wait(executor)
-        now = time.monotonic()
-        if now >= next_spin:
-            executor.spin_once(timeout_sec=0.0)
-            cost = time.monotonic() - now  # rclpy rebuilds the wait set each pass: keep its share of the wall bounded
-            next_spin = now + min(max(FAST_SPIN_PERIOD_S, cost / FAST_SPIN_SHARE), FAST_SPIN_MAX_PERIOD_S)
-
-
-class _Pace:
-    """The fast mode's optional real-time-factor cap: a wall-clock anchor and the simulated time at it."""
-
-    def __init__(self, sim_s: float):
-        self.anchor(sim_s)
-        self._factor = 0.0
-
-    def anchor(self, sim_s: float) -> None:
-        self._wall_s, self._sim_s = time.monotonic(), sim_s
-
-    def ahead_s(self, sim_s: float, factor: float) -> float:
-        """Wall seconds the simulation at ``sim_s`` is ahead of the anchor's clock at ``factor`` (0: no cap).
-        Re-anchors when uncapped, when the factor changed, and when it fell more than 0.1 s behind (a slow
-        stretch is not made up in a burst)."""
-        if factor <= 0 or factor != self._factor:
-            self._factor = factor
-            self.anchor(sim_s)
-            return 0.0
-        ahead_s = self._wall_s + (sim_s - self._sim_s) / factor - time.monotonic()
-        if ahead_s < -0.1:
-            self.anchor(sim_s)
-            return 0.0
-        return ahead_s
-
-
-def overrides_from_files(paths: Sequence[str]) -> list[Parameter]:
-    """The parameters of ``panel_rig:`` parameter files (e.g. the physics file), as node overrides.
-
-    Given to the node as ``parameter_overrides``, they apply in any namespace (rcl matches a plain
-    ``panel_rig:`` key only to ``/panel_rig``) and win over ``--ros-args --params-file`` values, not over
-    ``--ros-args -p`` ones (:func:`command_line_parameter_names`). Later files win.
-    """
-    values: dict[str, Any] = {}
-    for path in paths:
-        try:
-            values.update(read_params_file(path))
-        except ConfigError as exc:
-            raise StartupError(str(exc)) from None
-    table = parameter_table()
-    for name, value in values.items():  # `publish_rate_hz: 1e3` is text to YAML 1.1, a number to rcl's --params-file
-        if name in table and isinstance(table[name][0], float):
-            values[name] = number_if_text(value)
-    return [Parameter(name, value=value) for name, value in values.items()]
-
-
-def command_line_parameter_names(argv: Sequence[str]) -> set[str]:
-    """Names set by ``-p NAME:=VALUE`` / ``--param`` inside ``--ros-args ... [--]`` blocks (``NODE:NAME:=VALUE``
-    too). The files of ``--params`` yield to them: a value typed on the command line is the one meant."""
-    return {rule.split(":=", 1)[0].rsplit(":", 1)[-1] for rule in ros_rules(argv, ("-p", "--param"))}
-
-
-def start_overrides(param_files: Sequence[str], rcl_args: Sequence[str], fast: bool) -> list[Parameter]:
-    """The node's overrides: the ``--params`` files' values but those typed with ``-p`` (which rcl applies), and
-    ``fast`` for ``--fast``."""
-    typed = command_line_parameter_names(rcl_args)
-    overrides = [p for p in overrides_from_files(param_files) if p.name not in typed]
-    return overrides + [Parameter("fast", value=True)] if fast else overrides
-
-
-def parse_args(argv: Sequence[str]) -> tuple[Any, list[str]]:
-    """(own options, full argument list for rclpy). Own options are whatever is not a ROS argument
-    (rclpy's ``remove_ros_args``): ``--fast``, ``--params FILE`` (repeatable)."""
-    import argparse
-
-    from rclpy.utilities import remove_ros_args
-
-    parser = argparse.ArgumentParser(prog="rig_node", description="panel_rig emulated wind tunnel node")
-    parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
-    parser.add_argument("--params", action="append", default=[], metavar="FILE",
-                        help="a 'panel_rig:' parameters file applied in any namespace (repeatable)")
-    own = remove_ros_args(["rig_node", *argv])[1:]
-    return parser.parse_args(own), ["rig_node", *argv]
-
-
-def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None) -> int:
-    """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name. Returns an exit code.
-
-    Own options anywhere outside ``--ros-args ... [--]``: ``--fast``, ``--params FILE`` (see
-    :func:`overrides_from_files`).
-    """
-    args = sys.argv[1:] if argv is None else list(argv)
-    problem = ros_arguments_problem(args)
-    if problem:
-        print(f"rig_node: {problem}", file=sys.stderr)
-        return 2
-    opts, rcl_args = parse_args(args)
-    try:
-        overrides = start_overrides(opts.params, rcl_args, opts.fast)
-    except StartupError as exc:
-        print(f"rig_node: {exc}", file=sys.stderr)
-        return 2
-
-    stop = threading.Event()
-    node: RigNode | None = None
-    code = 0
-    with ros_session(rcl_args, stop):
-        try:
-            node = RigNode(stepper_factory=stepper_factory, parameter_overrides=overrides)
-            executor = SingleThreadedExecutor()
-            executor.add_node(node)
-            spin(node, executor, stop.is_set)
-            node.get_logger().info(f"stopping: {node.stats()}")
-        except StartupError as exc:
-            logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
-            logger.error(str(exc))
-            print(f"rig_node: {exc}", file=sys.stderr)
-            code = 2
-        finally:
-            if node is not None:
-                node.close()
-                node.destroy_node()
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

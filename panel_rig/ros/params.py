@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.parameter import Parameter
 
-from panel_rig.config import SCHEMA, PanelConfig, interval_rule
+from panel_rig.config import SCHEMA, PanelConfig, float_from_text, interval_rule
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
 from panel_rig.rig.control import ControlSettings
@@ -176,6 +177,45 @@ def publish_rate_problem(publish_rate_hz: float, physics_dt_s: float) -> str | N
         return (f"publish_rate_hz: {publish_rate_hz:g} Hz is above the physics step rate {step_hz:g} Hz "
                 f"(dt = {physics_dt_s:g} s): readings would repeat; publish at most once a step")
     return None
+
+
+def as_declared(table: Mapping[str, tuple[Any, ParameterDescriptor]], prm: Parameter) -> Parameter:
+    """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
+    (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
+    as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
+    entry = table.get(prm.name)
+    if entry is None or not isinstance(entry[0], float):
+        return prm
+    if prm.type_ == Parameter.Type.INTEGER:
+        return Parameter(prm.name, Parameter.Type.DOUBLE, float(prm.value))
+    if prm.type_ == Parameter.Type.STRING and (number := float_from_text(prm.value)) is not None:
+        return Parameter(prm.name, Parameter.Type.DOUBLE, number)
+    return prm
+
+
+def live_change_problem(params: Sequence[Parameter], current: Callable[[str], Any], physics_dt_s: float
+                        ) -> str | None:
+    """Why a live change of ``params`` is refused (None: it is not); ``current(name)``: a parameter's value now.
+    Physics and structural parameters are read-only (rclpy refuses them); ``use_sim_time`` is read at start."""
+    for prm in params:
+        if prm.name == "use_sim_time" and prm.value != current("use_sim_time"):
+            # rclpy takes it live, and a real-time node then waits for a /clock nobody publishes: frozen
+            return ("use_sim_time is read at start: restart the node with -p use_sim_time:=true (a fast node "
+                    "publishes /clock itself)")
+        spec = NODE_PARAMS.get(prm.name)
+        if spec is None:
+            continue
+        reason = spec.check(prm.value)
+        if reason:
+            return f"{prm.name}: {reason}"
+        if prm.name == "publish_rate_hz":
+            reason = publish_rate_problem(float(prm.value), physics_dt_s)
+            if reason:
+                return reason
+    after = {name: current(name) for name in ("control.fast_delay_s", "control.timeout_s")}
+    after.update({prm.name: prm.value for prm in params if prm.name in after})
+    problems = combination_problems(after)
+    return problems[0] if problems else None
 
 
 def _descriptor(default: Any, description: str, read_only: bool, lo: float | None, hi: float | None

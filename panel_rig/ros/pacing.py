@@ -1,0 +1,87 @@
+"""How far the rig node steps at a time, and when simulated time waits for a client.
+
+:func:`step_counts` turns the sample times of a block into whole physics steps before each sample (what
+``Rig.advance_samples`` marches); :func:`tick_counts` gives the samples of a real-time tick (one publish period
+apart, the samples a late tick owes, then the clock). :class:`ClientHolds` is the fast mode's waits for a client:
+simulated time does not start before the first command (``fast_wait_for_command``) and stops at each published
+flutter-test point until the next airspeed command (``flutter_test.hold``); each is released after
+``HOLD_TIMEOUT_S`` of wall time, logged. The node asks; the loop that runs it (:func:`panel_rig.ros.rig_node.spin`)
+serves callbacks only while a hold lasts.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from typing import Any
+
+HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
+
+
+def step_counts(time_s: float, targets_s: Iterable[float], dt_s: float) -> list[int]:
+    """Whole physics steps (``dt_s``) from ``time_s`` before each sample at ``targets_s`` (ascending), each
+    counted from where the steps before it ended (a sample at a target already passed: 0 steps)."""
+    counts, t = [], time_s
+    for target in targets_s:
+        n = max(math.floor((target - t) / dt_s + 1e-6), 0)
+        counts.append(n)
+        t += n * dt_s
+    return counts
+
+
+def tick_counts(time_s: float, last_sample_s: float, target_s: float, period_s: float, dt_s: float) -> list[int]:
+    """Steps before each sample of a real-time tick: one publish period after the last sample while that
+    leaves more than half a period to ``target_s`` (the samples a late tick owes), then ``target_s``."""
+    times, last = [], max(last_sample_s, time_s)
+    while last + 1.5 * period_s <= target_s:
+        last += period_s
+        times.append(last)
+    return step_counts(time_s, (*times, target_s), dt_s)
+
+
+class ClientHolds:
+    """The fast mode's holds of simulated time for a client (``rig``: its time in the log lines)."""
+
+    def __init__(self, rig: Any, logger: Any, *, wait_for_command: bool, flutter_hold: bool,
+                 flutter_monitor: Any | None) -> None:
+        self._rig, self._log, self._monitor = rig, logger, flutter_monitor
+        self._flutter_hold = bool(flutter_hold and flutter_monitor is not None)
+        # fast_wait_for_command: released by the first command, or after HOLD_TIMEOUT_S of wall time (logged)
+        self._start_hold_until: float | None = time.monotonic() + HOLD_TIMEOUT_S if wait_for_command else None
+        self._hold_since: float | None = None
+
+    def waiting_for_command(self) -> bool:
+        """Fast mode with ``fast_wait_for_command``: true until the first command arrives, so a session's clock
+        starts with its operator (the fast node ran ~40 simulated s at 0 m/s while one was discovered)."""
+        if self._start_hold_until is None:
+            return False
+        if time.monotonic() > self._start_hold_until:
+            self._start_hold_until = None
+            self._log.warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway")
+            return False
+        return True
+
+    def command_arrived(self) -> None:
+        """A command came: the start hold (if any) ends."""
+        if self._start_hold_until is not None:
+            self._start_hold_until = None
+            self._log.info(f"first command: simulated time starts at t = {self._rig.time_s:.3f} s")
+
+    def flutter_holding(self) -> bool:
+        """Fast mode with ``flutter_test.hold``: true until the first airspeed command and from each published test
+        point until the next one (the flutter-test client connects, then decides; simulated time waits, so results
+        do not depend on how fast the client is, and a run is reproducible from its seed). A client silent for
+        HOLD_TIMEOUT_S of wall time releases the hold (logged)."""
+        if not (self._flutter_hold and self._monitor.waiting):
+            self._hold_since = None
+            return False
+        now = time.monotonic()
+        if self._hold_since is None:
+            self._hold_since = now
+        if now - self._hold_since > HOLD_TIMEOUT_S:
+            self._flutter_hold = False
+            self._log.warning(f"no airspeed command for {HOLD_TIMEOUT_S:g} s (wall) after a test point: "
+                              f"flutter-test hold released at t = {self._rig.time_s:.3f} s")
+            return False
+        return True
