@@ -527,3 +527,11 @@ class RigNode(Node):
         does on closing."""
         self.recording.close()
         self.rig.close()
+
+
+if __name__ == "__main__":  # `python -m panel_rig.ros.node`, the earlier releases' documented form: the same program
+    import sys
+
+    from panel_rig.ros.rig_node import main
+
+    sys.exit(main())
