@@ -30,13 +30,13 @@ import numpy as np
 
 from panel_rig import jsonio
 from panel_rig.config import number_if_text
+from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
 from panel_rig.processes import (
     Interrupted,
     StopRequest,
     interruption,
     module_command,
-    private_domain_id,
     signals_set,
     sigterm_exits,
     spawn,

@@ -17,8 +17,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panel_rig import jsonio
+from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import module_command, private_domain_id, sigterm_exits, spawn, stop
+from panel_rig.processes import module_command, sigterm_exits, spawn, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO

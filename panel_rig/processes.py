@@ -4,7 +4,6 @@ test), and our own ROS programs (node, controller, operator) on SIGINT / SIGTERM
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -19,16 +18,6 @@ TERMINATED_STATUS = 128 + signal.SIGTERM
 BROKEN_PIPE_STATUS = 128 + signal.SIGPIPE
 
 
-#: the ROS domains our one-command programs (demo, control demo, flutter test) pick from: 1..101, the ids whose
-#: ports stay out of Linux's ephemeral range; the test suite keeps to 102..200, so a demo run beside it never
-#: shares its graph
-PRIVATE_DOMAINS = (1, 101)
-
-
-def private_domain_id() -> int:
-    """A random ROS domain id in PRIVATE_DOMAINS, for a node + client pair that nobody else on the host should
-    see (the programs also limit discovery to this host)."""
-    return random.randint(*PRIVATE_DOMAINS)
 
 
 #: set by :func:`spawn` in its child's environment: the parent's process id, for :func:`follow_parent`

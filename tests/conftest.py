@@ -2,7 +2,6 @@
 
 import os
 import queue
-import random
 import subprocess
 import threading
 from collections.abc import Callable, Iterator
@@ -10,6 +9,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from panel_rig.config import load_config
+from panel_rig.domains import TEST_DOMAINS, claim_domain_id
 from panel_rig.model.aeroelastic import AeroelasticModel
 
 
@@ -25,14 +25,19 @@ def model(cfg):
 
 @pytest.fixture(scope="module")
 def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
-    """A private ROS 2 graph for one test module: a random domain (102-200, away from the default 0 of a user's own
-    nodes), discovery on localhost only, logs in a temporary directory. Applied to this process (the rclpy clients
-    a test makes join it) and restored afterwards; yields the whole environment, for the nodes a test starts."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("ROS_DOMAIN_ID", str(random.randint(102, 200)))  # programs: 1..101 (PRIVATE_DOMAINS)
-        mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        mp.setenv("ROS_LOG_DIR", str(tmp_path_factory.mktemp("ros_log")))
-        yield dict(os.environ)
+    """A private ROS 2 graph for one test module: a free domain (TEST_DOMAINS, away from the default 0 of a user's
+    own nodes and the programs' PRIVATE_DOMAINS; claimed, so a suite run beside this one never shares it),
+    discovery on localhost only, logs in a temporary directory. Applied to this process (the rclpy clients a test
+    makes join it) and restored afterwards; yields the whole environment, for the nodes a test starts."""
+    claim = claim_domain_id(*TEST_DOMAINS)
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv("ROS_DOMAIN_ID", str(claim.domain_id))
+            mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+            mp.setenv("ROS_LOG_DIR", str(tmp_path_factory.mktemp("ros_log")))
+            yield dict(os.environ)
+    finally:
+        claim.release()
 
 
 class StderrLines:

@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import yaml
 
+from panel_rig.domains import private_domain_id
 from panel_rig.processes import (
     Interrupted,
     StopRequest,
     interruption,
     module_command,
-    private_domain_id,
     signals_set,
     spawn,
     stop,
