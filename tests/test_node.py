@@ -475,9 +475,15 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
     dwell = next(r for r in rows if r[1] == "dwell_s" and r[2] == "2.0")
     _, u_cmd, u_meas, _, _ = map(num, dwell[-5:])  # t_end U_cmd U_meas tip_rms_mm f_Hz
     assert u_cmd == 5.0 and u_meas == pytest.approx(5.0 * (1 - math.exp(-2.0 / TAU_S)), rel=0.05)
+    from panel_rig.ros.operator import NO_FREQUENCY_NOTE
+
     shaken = next(r for r in rows if r[1] == "dwell_s" and r[2] == "1.0")
     _, _, _, rms_mm, f_hz = map(num, shaken[-5:])
-    assert rms_mm > 0 and f_hz == pytest.approx(8.0, rel=0.1)
+    # the readings are best effort: on a loaded machine the operator misses some, and a gap that could hide a
+    # crossing gives no frequency (said under the table) rather than a wrong one (5.26 Hz was printed once);
+    # tests/test_operator.py holds the estimate itself on readings with and without such gaps
+    assert rms_mm > 0
+    assert f_hz == pytest.approx(8.0, rel=0.1) or (math.isnan(f_hz) and NO_FREQUENCY_NOTE in proc.stdout), proc.stdout
     ramp = next(r for r in rows if r[1] == "ramp")
     assert num(ramp[-4]) == 3.0  # commanded at the end of the ramp
     abort_line = next(line for line in proc.stdout.splitlines() if line.split()[1:2] == ["abort"])
@@ -797,7 +803,8 @@ def test_a_stopped_operator_winds_off_and_shows_what_it_played(fast_node: subpro
     assert proc.returncode == 143, err[-2000:]
     assert "stopped at step 2 of 3: tunnel commanded to 0 m/s, shaker off" in err, err[-2000:]
     assert [line.split()[:3] for line in out.splitlines() if line.strip()[:1].isdigit()] == [["1", "airspeed", "6.0"]]
-    assert float(client.next_diag()["airspeed_setpoint_mps"]) == 0.0
+    # the operator saw 0 m/s on the rig's /diagnostics before it exited; this client may still hold older messages
+    client.wait(lambda: float(client.diag()["airspeed_setpoint_mps"]) == 0.0, 10.0, "the rig's set-point at 0 m/s")
 
 
 def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> None:

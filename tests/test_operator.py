@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import math
 
-from panel_rig.ros.operator import NO_FREQUENCY_NOTE, StepSummary, format_summary, parse_profile
+import numpy as np
+import pytest
+
+from panel_rig.ros.operator import NO_FREQUENCY_NOTE, StepSummary, format_summary, parse_profile, tip_metrics
 
 
 def test_shaker_and_ramp_rows_name_their_values_in_words() -> None:
@@ -27,3 +30,17 @@ def test_a_missing_frequency_is_explained_under_the_table() -> None:
     rows[1].tip_freq_hz = 17.2
     assert NO_FREQUENCY_NOTE not in format_summary(rows)
     assert math.isnan(rows[0].tip_rms_m)  # a command row has neither: no note for it
+
+
+def test_a_gap_that_can_hide_a_crossing_gives_no_frequency() -> None:
+    """Under load the operator's 8 Hz shaker row read 5.26 Hz: the readings covered the window (coverage above
+    0.65) but gaps of half a period or more hid mean crossings. A gap over a quarter of the period found: no
+    frequency; the same readings without those gaps: 8 Hz."""
+    t = np.arange(0.0, 10.0, 0.002)
+    w = 0.01 * np.sin(2 * np.pi * 8.0 * t)
+    assert tip_metrics(list(zip(t, w)))[1] == pytest.approx(8.0, rel=0.01)
+    keep = np.ones(t.size, bool)
+    for start in np.arange(5.2, 10.0, 0.6):  # a 70 ms gap every 0.6 s: 88 % of the readings kept
+        keep[(t > start) & (t < start + 0.07)] = False
+    rms, f = tip_metrics(list(zip(t[keep], w[keep])))
+    assert math.isnan(f) and rms == pytest.approx(0.01 / math.sqrt(2), rel=0.05)

@@ -153,13 +153,15 @@ def load_profile(path: str | Path) -> list[Step]:
 #: node's own; its intervals alternate between whole physics steps, 4 and 5 at 500 Hz: 0.89 with none lost) over
 #: the span
 MIN_COVERAGE = 0.65
+#: the longest gap between two readings, in periods of the frequency found, that cannot hide a mean crossing
+MAX_GAP_PERIODS = 0.25
 
 
 def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
     """(RMS about the mean, frequency from mean-crossings) of the second half of (t, w) samples. The readings
     are best effort and a busy operator misses many in fast mode: a missed crossing halves the count (the demo's
     17 Hz LCO read 5.4 Hz, varying with the machine's load), so the frequency is NaN unless the readings cover the
-    window (MIN_COVERAGE)."""
+    window (MIN_COVERAGE) and no gap between two of them is long enough to hide a crossing (MAX_GAP_PERIODS)."""
     if len(samples) < 8:
         return math.nan, math.nan
     arr = np.asarray(samples, dtype=float)
@@ -172,7 +174,10 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
     covered = t[-1] > t[0] and (t.size - 1) * shortest / (t[-1] - t[0]) >= MIN_COVERAGE
     ups = np.nonzero((w[:-1] < 0) & (w[1:] >= 0))[0]
     freq = (len(ups) - 1) / (t[ups[-1]] - t[ups[0]]) if len(ups) >= 3 and t[ups[-1]] > t[ups[0]] else math.nan
-    return rms, float(freq) if covered else math.nan
+    # a gap of half a period can hide a crossing (then the count, and the frequency, come out low): none over a
+    # quarter of the period found
+    hidden = math.isfinite(freq) and dt.size > 0 and float(np.max(dt)) > MAX_GAP_PERIODS / freq
+    return rms, float(freq) if covered and not hidden else math.nan
 
 
 class Operator(Node):
