@@ -190,3 +190,23 @@ def test_monitor_logs_the_zw_flutter_margin_of_each_point_with_both_modes(tmp_pa
     assert [_scalar(r) for r in rows] == pytest.approx(expected, rel=1e-12)
     assert len(rows) == len(SPEEDS) - 1 and np.all(np.diff(expected) < 0)  # F falls toward flutter
     assert _views(path)["ZW flutter margin F per point (Hz^4; flutter where it reaches 0)"] == "/flutter/zw_margin_hz4"
+
+
+def test_the_flutter_views_show_the_whole_test(monitor_rrd) -> None:
+    """One sample per test point, minutes apart: in the viewer's default window at the time cursor the monitor's
+    views showed the last point or two (the whole test is ~20 simulated minutes). Each flutter time-series view sets
+    its time axis to the whole recording; the readings' views keep the default."""
+    path, _ = monitor_rrd
+    reader = RrdReader(path)
+    names: dict[str, str] = {}
+    whole: set[str] = set()
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        entity = str(chunk.entity_path)
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            names[entity] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
+        if "TimeAxis:view_range" in batch.schema.names:
+            whole.add(entity.rsplit("/TimeAxis", 1)[0])
+    monitor = ("Flutter monitor", "Flutter margin", "Flutter mode: damping ratio x 1000 (95 %)")
+    assert sorted(names[v] for v in whole) == sorted(n for n in names.values() if n.startswith(monitor))
+    assert len(whole) == 3  # this recording: U_f, margin, damping (no ZW view asked for)

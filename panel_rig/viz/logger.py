@@ -93,16 +93,23 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
         series += [rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
                    rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)")]
     if "flutter" in views:
+        # one sample per test point (minutes apart): the whole test in view, not the viewer's window at the cursor
+        whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                      end=rrb.TimeRangeBoundary.infinite()))
         if "flutter_uf" in views:
             series.append(rrb.TimeSeriesView(
-                origin=FLUTTER_UF, name="Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)"))
+                origin=FLUTTER_UF, name="Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)",
+                axis_x=whole))
         series += [
-            rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)"),
-            rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point"),
+            rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)",
+                               axis_x=whole),
+            rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point",
+                               axis_x=whole),
         ]
         if "flutter_zw" in views:
             series.append(rrb.TimeSeriesView(
-                origin=FLUTTER_ZW, name="ZW flutter margin F per point (Hz^4; flutter where it reaches 0)"))
+                origin=FLUTTER_ZW, name="ZW flutter margin F per point (Hz^4; flutter where it reaches 0)",
+                axis_x=whole))
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
     eye = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital, position=[0.35, -2.5, 0.3], look_target=[0.35, 0.0, 0.0],
