@@ -11,7 +11,9 @@ import textwrap
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -409,6 +411,53 @@ def test_sigterm_handler_close_finalises_bag(tmp_path: Path) -> None:
     assert has_summary(bag_dir / "termed_0.mcap")
     assert read_metadata(bag_dir)["message_count"] == written >= 2000
     assert sum(1 for _ in read_bag(bag_dir)) == written
+
+
+class _SignalAt:
+    """The writer's lock, calling ``hook`` in the writing thread right after it acquires or right after it releases:
+    where a signal can land between the lock and the writer's mark of the thread that holds it."""
+
+    def __init__(self, lock: threading.Lock, hook: Callable[[], None], after: str) -> None:
+        self._lock, self._hook, self._after, self._armed = lock, hook, after, True
+        self._writer_thread = threading.get_ident()
+
+    def _fire(self, where: str) -> None:
+        if self._armed and where == self._after and threading.get_ident() == self._writer_thread:
+            self._armed = False
+            self._hook()
+
+    def acquire(self, *args: Any, **kwargs: Any) -> bool:
+        got = self._lock.acquire(*args, **kwargs)
+        if got:
+            self._fire("acquire")
+        return got
+
+    def release(self) -> None:
+        self._lock.release()
+        self._fire("release")
+
+
+@pytest.mark.parametrize("after", ["acquire", "release"])
+def test_close_from_a_signal_at_the_lock_s_edges_finishes_the_bag(tmp_path: Path, after: str) -> None:
+    """A CI run hung in test_sigterm_handler_close_finalises_bag: the handler's close() landed just after write()
+    had acquired the lock but before it marked its thread as inside, took the lock again and deadlocked. The mark
+    now covers acquiring and releasing; a close() landing just after the release (the mark still set) is done
+    there, not deferred to a write that has ended. Either way the close completes the bag."""
+    done: list[bool] = []
+
+    def write_once() -> None:
+        w = BagWriter(tmp_path / after, flush_period_s=60.0)
+        w._lock = _SignalAt(w._lock, w.close, after)  # the "signal handler" calls close(), as the node's does
+        w.write("/rig/airspeed_cmd", Float64(data=1.0), 1, qos="reliable")
+        done.append(w.closed)
+
+    t = threading.Thread(target=write_once, daemon=True)
+    t.start()
+    t.join(timeout=10.0)
+    assert not t.is_alive(), "deadlocked: close() from the handler took the lock its own thread held"
+    assert done == [True]
+    assert has_summary(tmp_path / after / f"{after}_0.mcap")
+    assert read_metadata(tmp_path / after)["message_count"] == 1
 
 
 def test_recover_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -254,7 +254,7 @@ class BagWriter:
         self.flush_period_s = float(flush_period_s)
         self.dropped_after_close = 0
         self._lock = threading.Lock()
-        self._owner: int | None = None  # thread id inside the critical section
+        self._inside = threading.local()  # .held: this thread is in the critical section (acquiring and releasing included)
         self._close_requested = False
         self._closed = False
         self._dirty = False
@@ -387,7 +387,7 @@ class BagWriter:
         """
         if self._closed:
             return
-        if self._owner == threading.get_ident():
+        if getattr(self._inside, "held", False):
             self._close_requested = True
             return
         with self._critical():
@@ -418,9 +418,12 @@ class BagWriter:
         def __init__(self, owner: BagWriter) -> None:
             self.owner = owner
 
+        # The thread's mark covers the lock's whole tenure, acquiring and releasing included: a close() from a signal
+        # handler landing there is deferred; set after acquire (or cleared before release), a signal in between
+        # made close() take the lock this thread held: a deadlock (a CI run hung in the SIGTERM test).
         def __enter__(self) -> None:
+            self.owner._inside.held = True
             self.owner._lock.acquire()
-            self.owner._owner = threading.get_ident()
 
         def __exit__(self, *exc: object) -> None:
             owner = self.owner
@@ -428,8 +431,10 @@ class BagWriter:
                 if owner._close_requested and not owner._closed:
                     owner._close_locked()
             finally:
-                owner._owner = None
                 owner._lock.release()
+                owner._inside.held = False
+            if owner._close_requested and not owner._closed:  # requested after the check above
+                owner.close()
             if owner._closed:
                 owner._stop.set()
 
