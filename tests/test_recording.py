@@ -400,8 +400,9 @@ def test_sigterm_handler_close_finalises_bag(tmp_path: Path) -> None:
             if int(line) >= 2000:
                 break
         child.send_signal(signal.SIGTERM)
-        tail = child.stdout.read().split()
-        assert child.wait(timeout=20) == 0, child.stderr.read()
+        out, err = child.communicate(timeout=30)  # bounded: a writer deadlocked in its handler fails, not hangs
+        tail = out.split()
+        assert child.returncode == 0, err
     finally:
         if child.poll() is None:
             child.kill()
