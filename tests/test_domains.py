@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import socket
 
 from panel_rig.domains import TEST_DOMAINS, claim_domain_id, discovery_port, domain_in_use
@@ -39,5 +40,23 @@ def test_a_domain_with_a_participant_on_this_host_is_skipped() -> None:
             held.release()
             assert claim_domain_id(d, d)._fd is None  # in use, though unlocked: not claimed
         assert not domain_in_use(d)
+    finally:
+        held.release()
+
+
+def test_a_port_the_host_refuses_for_another_reason_leaves_the_lock_file_to_decide(monkeypatch) -> None:
+    """A bind refused with anything but EADDRINUSE (no IPv4, a sandbox) raised out of the claim: a program failed
+    with a traceback before it started its node. Such a port tells nothing; the lock file still keeps claims apart."""
+
+    def refuse(self, address):
+        raise OSError(errno.EACCES, "Permission denied")
+
+    monkeypatch.setattr(socket.socket, "bind", refuse)
+    lo, hi = TEST_DOMAINS
+    assert not domain_in_use(lo)
+    held = claim_domain_id(lo, hi)
+    try:
+        assert held._fd is not None
+        assert claim_domain_id(held.domain_id, held.domain_id)._fd is None
     finally:
         held.release()

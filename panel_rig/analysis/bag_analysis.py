@@ -244,7 +244,8 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     late = half[-max(16, int(round(crit.measure_s / dt))) :]
     freq = dominant_frequency_hz(late, mean_dt(t[i1 - late.size : i1]))
     win_s = max(crit.envelope_window_s, 4.0 / freq) if freq > 0 else crit.envelope_window_s
-    env = window_rms(free, max(2, int(round(win_s / dt))))
+    win_n = max(2, int(round(win_s / dt)))  # samples per envelope window
+    env = window_rms(free, win_n)
     rate = envelope_rate_per_s(free, dt, win_s)
     rate_late = envelope_rate_per_s(late, dt, min(win_s, late.size * dt / 3))
     rms_late = rms(late)
@@ -259,7 +260,7 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
         "airspeed_mps": float(np.mean(u)), "airspeed_std_mps": float(np.std(u)),
         "rms_tip_w_over_L": rms_late, "peak_tip_w_over_L": float(np.max(np.abs(late))),
         "dominant_frequency_hz": freq, "growth_rate_per_s": rate, "late_growth_rate_per_s": rate_late,
-        "onset_growth_rate_per_s": (onset_growth_rate_per_s(env, max(2, int(round(win_s / dt))) * dt, crit)
+        "onset_growth_rate_per_s": (onset_growth_rate_per_s(env, win_n * dt, crit)
                                     if status == "lco" else None),
         "status": status,
     }
@@ -284,7 +285,8 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
         "first_lco_mps": first_lco["airspeed_mps"] if first_lco else None,
         "extrapolated_mps": None, "extrapolation_points": [], "interpolated_mps": None,
     }
-    # a quiet plateau's rate is the noise of a response that never rose: only a measured decay is interpolated;
+    # a quiet or stationary plateau's rate is noise (a response that never rose, or the turbulence's random
+    # response drifting): only a measured decay is interpolated;
     # the top's rate is a growing plateau's, or the growth an LCO plateau saw before it saturated
     top_rate = (None if upper is None else upper["growth_rate_per_s"] if upper["status"] == "growing"
                 else upper.get("onset_growth_rate_per_s"))
