@@ -149,19 +149,24 @@ def load_profile(path: str | Path) -> list[Step]:
     return parse_profile(doc)
 
 
-#: share of a step's readings that must have arrived for a frequency: (count - 1) x the shortest interval (the
-#: node's own; its intervals alternate between whole physics steps, 4 and 5 at 500 Hz: 0.89 with none lost) over
-#: the span
-MIN_COVERAGE = 0.65
-#: the longest gap between two readings, in periods of the frequency found, that cannot hide a mean crossing
+#: the longest gap between two readings, in periods measured across it, that cannot hide a mean crossing: a
+#: crossing goes unseen only inside a gap that also holds the opposite crossing (about half a period of a
+#: sinusoid), and a period with an up-crossing hidden in it is measured twice as long
 MAX_GAP_PERIODS = 0.25
+#: periods (between consecutive up-crossings, with no gap that could hide one) a frequency is taken from
+MIN_PERIODS = 3
+#: the operator's reading queue per topic (best effort): in fast mode the node publishes readings faster than the
+#: operator takes them, and what it takes at a turn is the newest this many, contiguous (the sensor profile's 5
+#: readings, 10 ms at 500 Hz, spanned a fraction of a 17 Hz period)
+READINGS_DEPTH = 100
 
 
 def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
-    """(RMS about the mean, frequency from mean-crossings) of the second half of (t, w) samples. The readings
-    are best effort and a busy operator misses many in fast mode: a missed crossing halves the count (the demo's
-    17 Hz LCO read 5.4 Hz, varying with the machine's load), so the frequency is NaN unless the readings cover the
-    window (MIN_COVERAGE) and no gap between two of them is long enough to hide a crossing (MAX_GAP_PERIODS)."""
+    """(RMS about the mean, mean-crossing frequency) of the second half of (t, w) samples. The readings are best
+    effort and a busy operator misses many in fast mode: a missed crossing doubles a period (the demo's 17 Hz LCO
+    read 5.4 Hz, an 8 Hz shaker 5.26 Hz), so a period between consecutive up-crossings counts only if no gap
+    between readings inside it is as long as MAX_GAP_PERIODS of it; the frequency is NaN with fewer than
+    MIN_PERIODS such periods."""
     if len(samples) < 8:
         return math.nan, math.nan
     arr = np.asarray(samples, dtype=float)
@@ -169,15 +174,17 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
     arr = arr[arr[:, 0] >= arr[0, 0] + 0.5 * (arr[-1, 0] - arr[0, 0])]
     t, w = arr[:, 0], arr[:, 1] - arr[:, 1].mean()
     rms = float(np.sqrt(np.mean(w**2)))
-    dt = np.diff(t)
-    shortest = float(np.min(dt[dt > 0])) if np.any(dt > 0) else 0.0
-    covered = t[-1] > t[0] and (t.size - 1) * shortest / (t[-1] - t[0]) >= MIN_COVERAGE
     ups = np.nonzero((w[:-1] < 0) & (w[1:] >= 0))[0]
-    freq = (len(ups) - 1) / (t[ups[-1]] - t[ups[0]]) if len(ups) >= 3 and t[ups[-1]] > t[ups[0]] else math.nan
-    # a gap of half a period can hide a crossing (then the count, and the frequency, come out low): none over a
-    # quarter of the period found
-    hidden = math.isfinite(freq) and dt.size > 0 and float(np.max(dt)) > MAX_GAP_PERIODS / freq
-    return rms, float(freq) if covered and not hidden else math.nan
+    if ups.size < 2:
+        return rms, math.nan
+    t_up = t[ups] + (t[ups + 1] - t[ups]) * -w[ups] / (w[ups + 1] - w[ups])  # interpolated crossing times
+    periods = np.diff(t_up)
+    # the longest gap between readings from each crossing's straddling pair to the next one's
+    gap = np.diff(t)
+    widest = np.array([gap[a : b + 1].max() for a, b in zip(ups[:-1], ups[1:])])
+    clean = periods[(periods > 0) & (widest < MAX_GAP_PERIODS * periods)]
+    freq = clean.size / clean.sum() if clean.size >= MIN_PERIODS else math.nan
+    return rms, float(freq)
 
 
 class Operator(Node):
@@ -191,7 +198,9 @@ class Operator(Node):
         self._last_msg_wall = time.monotonic()
         self._samples: list[tuple[float, float]] | None = None
         self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
-        self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
+        readings = QoSProfile(depth=READINGS_DEPTH, reliability=qos_profile_sensor_data.reliability,
+                              durability=qos_profile_sensor_data.durability)
+        self.create_subscription(PointStamped, "tip_displacement", self._on_tip, readings)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, DIAGNOSTICS_QOS)
         self.diag_sim_time_s = -math.inf  # the rig's simulated time in its last diagnostics
         self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
@@ -386,7 +395,7 @@ def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) ->
 
 
 #: under the table when a step with a tip RMS has no frequency
-NO_FREQUENCY_NOTE = ("f_Hz -: too few readings or zero crossings arrived for a frequency (readings are best effort; "
+NO_FREQUENCY_NOTE = ("f_Hz -: too few periods arrived without a gap for a frequency (readings are best effort; "
                      "in fast mode a subscriber misses many); the bag's analysis has every reading")
 
 
