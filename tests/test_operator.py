@@ -56,7 +56,7 @@ def test_a_period_a_gap_could_hide_a_crossing_in_is_left_out() -> None:
 def test_the_fast_operator_s_bursts_of_readings_give_the_lco_frequency() -> None:
     """In fast mode the operator takes the newest readings at each turn (its queue, READINGS_DEPTH of them: 0.2 s at
     500 Hz) and misses what came between turns: bursts with random gaps. A 17 Hz LCO with the sensor's noise reads
-    17 Hz; the turbulence's random response at rest reads some frequency or none, never an error."""
+    17 Hz."""
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 20.0, 0.002)
     w = 0.094 * np.sin(2 * np.pi * 17.0 * t + 0.3) + 5e-6 * rng.standard_normal(t.size)
