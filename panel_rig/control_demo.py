@@ -33,6 +33,7 @@ from panel_rig.config import number_if_text
 from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
 from panel_rig.processes import (
+    RIG_STARTUP_TIMEOUT_S,
     Interrupted,
     StopRequest,
     interruption,
@@ -215,7 +216,8 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     stopped, failure = None, None
     with signals_set(stop_request):
         try:
-            client.wait(lambda: client.diag.get("control_lockstep") == "True", 90.0, "the controller in lock-step")
+            client.wait(lambda: client.diag.get("control_lockstep") == "True", RIG_STARTUP_TIMEOUT_S,
+                        "the controller in lock-step")
             summary.update(_quiet_check(client, u_f))
             log(f"1.2 U_f = {summary['quiet_airspeed_mps']:.2f} m/s: tip RMS {summary['quiet_tip_rms_m'] * 1e6:.2f} um "
                 f"over t_tap + 4..6 s (quiet below {summary['quiet_threshold_m'] * 1e6:.0f} um = {QUIET_FACTOR:g} x "

@@ -19,14 +19,14 @@ from pathlib import Path
 from panel_rig import jsonio
 from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import module_command, sigterm_exits, spawn, stop
+from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, module_command, sigterm_exits, spawn, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
 #: amplitudes (its tip cannot pass its own length, and it does not diverge past ~1.2 U_f as the cubic ones do)
 DEMO_VARIANT = "exact"
 NODE_STOP_TIMEOUT_S = 20.0
-OPERATOR_TIMEOUT_S = 110.0  # wall: the staircase takes ~30 s on this machine
+OPERATOR_TIMEOUT_S = RIG_STARTUP_TIMEOUT_S + 110.0  # wall: the rig's start-up, then the staircase (~10-30 s here)
 
 
 def _env(log_dir: Path) -> dict[str, str]:
@@ -85,9 +85,11 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
                 "-p", "fast:=true", "-p", f"fast_max_realtime_factor:={args.max_rtf}",
                 "-p", f"model.variant:={DEMO_VARIANT}", "-p", "fast_wait_for_command:=true"]
     op_cmd = [*module_command("panel_rig.ros.operator"), "--profile", args.profile, "--namespace", "/rig",
-              "--timeout", "30"]
+              "--timeout", "30", "--startup-timeout", f"{RIG_STARTUP_TIMEOUT_S:g}"]
     node = operator = None
     op_out = op_err = ""
+    print("panel-rig demo: starting the rig node and the operator (a first run compiles the physics kernels: "
+          "about half a minute)", file=sys.stderr, flush=True)
     try:
         # the operator first: it waits for the rig, so the fast node does not run ahead at 0 m/s while the
         # operator starts up (a third of the runs began with ~40 simulated seconds of nothing)

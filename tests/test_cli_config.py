@@ -70,6 +70,7 @@ def test_flutter_plot(tmp_path):
     (["control", "--ros-args", "-p"], "bad --ros-args"),
     (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),
     (["operate", "--profile", "config/staircase.yaml", "--timeout", "nan"], "--timeout"),  # never timed out
+    (["operate", "--profile", "config/staircase.yaml", "--startup-timeout", "-1"], "--startup-timeout"),
     (["flutter-test", "--settle", "inf"], "--settle"),  # was refused by the node, the reason only in its log
     (["flutter-test", "--dwell", "1e9"], "--dwell"),
     # checked before the test runs: a plot that could not be written lost a whole test's results

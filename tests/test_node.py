@@ -894,3 +894,38 @@ def test_operator_stops_when_the_rig_restarts(ros_env: dict[str, str]) -> None:
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_operator_waits_for_a_rig_that_starts_slowly(ros_env: dict[str, str]) -> None:
+    """A node's first start on an install compiles the kernels (23-28 s on this machine): the operator's silence
+    timeout counted from its own start, and a fresh clone's first `make run` ended "no readings from the rig for
+    30 s" when the node took 28 s. The start-up now has its own deadline (then a message saying the rig did not come
+    up), and the silence timeout counts once the rig is up: a node slower to start than that timeout is waited for."""
+    from panel_rig.ros import operator
+
+    namespace = "/rig_late_start"
+    rclpy.init(domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = operator.Operator(namespace, timeout_s=0.2, startup_timeout_s=1.5)
+        proc = None
+        try:
+            t0 = time.monotonic()
+            with pytest.raises(operator.RigUnavailable, match=f"the rig in {namespace} did not come up within 1.5 s"):
+                node.wait_for_rig()
+            assert time.monotonic() - t0 >= 1.5
+            node.startup_timeout_s = 120.0
+            proc = subprocess.Popen(node_cmd(namespace=namespace), env=ros_env, cwd=ROOT, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True)
+            t0 = time.monotonic()
+            node.wait_for_rig()
+            assert time.monotonic() - t0 > node.timeout_s  # the case that failed: up later than the silence timeout
+            node._spin(0.0)  # the silence is counted from the rig's arrival
+            assert math.isfinite(node.time_s)
+        finally:
+            if proc is not None:
+                proc.send_signal(signal.SIGINT)
+                out, _ = proc.communicate(timeout=30)
+                assert proc.returncode == 0, out[-2000:]
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

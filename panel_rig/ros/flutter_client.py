@@ -20,7 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from panel_rig.analysis.flutter_test import TestPoint
-from panel_rig.processes import StopRequest, stop_exception
+from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest, stop_exception
 from panel_rig.ros.flutter_monitor import STATUS_NAME, TOPIC, parse_monitor, point_from_values
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -82,7 +82,7 @@ class FlutterTestClient(Node):
         if time.monotonic() - self._last_heard > self.timeout_s:
             raise RigGone(f"nothing from the rig node for {self.timeout_s:g} s (wall)")
 
-    def wait_for_rig(self, executor: Any, startup_s: float = 180.0) -> None:
+    def wait_for_rig(self, executor: Any, startup_s: float = RIG_STARTUP_TIMEOUT_S) -> None:
         """Until the node publishes diagnostics and its flutter monitor and subscribes to ``airspeed_cmd`` (model
         build and JIT load can take a minute on a cold cache: ``startup_s`` of wall time). A second rig node in the
         namespace (somebody's own, on the same ROS domain) would take the test's commands: refused (:meth:`_check_alone`,

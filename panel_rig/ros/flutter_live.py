@@ -18,6 +18,7 @@ import yaml
 
 from panel_rig.domains import private_domain_id
 from panel_rig.processes import (
+    RIG_STARTUP_TIMEOUT_S,
     Interrupted,
     StopRequest,
     interruption,
@@ -72,7 +73,7 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
 def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
              bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
              dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
-             max_points: int | None = None, startup_s: float = 180.0,
+             max_points: int | None = None, startup_s: float = RIG_STARTUP_TIMEOUT_S,
              progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on a freshly started live node; returns the JSON payload (the issue's keys, plus
     ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison). ``progress``:

@@ -35,7 +35,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from panel_rig.config import ConfigError, load_yaml_file, number_if_text
-from panel_rig.processes import StopRequest
+from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 from panel_rig.topics import REJECTED_SUFFIX
 
@@ -190,9 +190,11 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
 class Operator(Node):
     """The rig's operator console: command publishers, reading subscriptions, service clients."""
 
-    def __init__(self, namespace: str = "/rig", timeout_s: float = 10.0, stop: threading.Event | None = None) -> None:
+    def __init__(self, namespace: str = "/rig", timeout_s: float = 10.0, stop: threading.Event | None = None,
+                 startup_timeout_s: float = RIG_STARTUP_TIMEOUT_S) -> None:
         super().__init__("panel_rig_operator", namespace=namespace)
-        self.timeout_s = timeout_s
+        self.timeout_s = timeout_s  # wall seconds without readings, once the rig is up
+        self.startup_timeout_s = startup_timeout_s  # wall seconds for the rig to come up (wait_for_rig)
         self.time_s = math.nan
         self.airspeed_mps = math.nan
         self._last_msg_wall = time.monotonic()
@@ -263,12 +265,18 @@ class Operator(Node):
 
     def wait_for_rig(self) -> None:
         """Until the rig publishes (readings, or diagnostics: a fast node with ``fast_wait_for_command`` starts its
-        clock with our first command) and every command topic has a subscriber."""
-        self._last_msg_wall = time.monotonic()
+        clock with our first command) and every command topic has a subscriber; at most :attr:`startup_timeout_s`
+        of wall time (a first start compiles the kernels: the silence timeout counts only once the rig is up)."""
+        deadline = time.monotonic() + self.startup_timeout_s
         while ((math.isnan(self.time_s) and not math.isfinite(self.diag_sim_time_s))
                or any(p.get_subscription_count() == 0 for p in self.pubs.values())
                or any(sub.get_publisher_count() == 0 for sub in self._echoes)):
+            if time.monotonic() > deadline:
+                raise RigUnavailable(f"the rig in {self.get_namespace()} did not come up within "
+                                     f"{self.startup_timeout_s:g} s (wall)")
+            self._last_msg_wall = time.monotonic()
             self._spin(0.1)
+        self._last_msg_wall = time.monotonic()
         if math.isnan(self.time_s):
             self.time_s = self.diag_sim_time_s
 
@@ -426,7 +434,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rig_operator", description="play a profile against the panel_rig node")
     parser.add_argument("--profile", required=True, metavar="FILE.yaml", help="YAML profile (see config/staircase.yaml)")
     parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
-    parser.add_argument("--timeout", type=float, default=10.0, help="wall seconds without readings = failure")
+    parser.add_argument("--timeout", type=float, default=10.0,
+                        help="wall seconds without readings, once the rig is up = failure (default 10)")
+    parser.add_argument("--startup-timeout", type=float, default=RIG_STARTUP_TIMEOUT_S,
+                        help=f"wall seconds to wait for the rig to come up (default {RIG_STARTUP_TIMEOUT_S:g}: a first "
+                             "start compiles the kernels)")
     problem = ros_arguments_problem(args)
     if problem:
         print(f"rig_operator: {problem}", file=sys.stderr)
@@ -435,6 +447,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     problem = namespace_problem(opts.namespace)
     if not (math.isfinite(opts.timeout) and opts.timeout > 0):
         problem = f"--timeout must be a positive number of seconds, got {opts.timeout}"
+    elif not (math.isfinite(opts.startup_timeout) and opts.startup_timeout > 0):
+        problem = f"--startup-timeout must be a positive number of seconds, got {opts.startup_timeout}"
     elif problem:
         problem = f"--namespace {opts.namespace!r}: {problem}"
     if problem:
@@ -450,7 +464,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     stop = StopRequest()
     code = 0
     with ros_session(["rig_operator", *args], stop):
-        node = Operator(opts.namespace, opts.timeout, stop=stop)
+        node = Operator(opts.namespace, opts.timeout, stop=stop, startup_timeout_s=opts.startup_timeout)
         try:
             summary = node.play(steps)
             print(format_summary(summary))
