@@ -168,6 +168,12 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         writer.write("/rig/airspeed_cmd", Float64(data=3.0), 1, qos="reliable")
     assert main([str(tmp_path / "notip")]) == 2
     assert "no tip_displacement topic" in _one_error_line(capsys)
+    # a node stopped before its first step (the demo's when its operator gave up) leaves a bag without messages:
+    # "not a rig recording" was wrong
+    with BagWriter(tmp_path / "unrun"):
+        pass
+    assert main([str(tmp_path / "unrun")]) == 2
+    assert "holds no messages: the rig stopped before it ran a step" in _one_error_line(capsys)
     # a recording without summary: still being written (its lock is held): say so; a killed writer's (a copy,
     # whose lock nobody holds): point at `bag recover`
     writer = BagWriter(tmp_path / "live")

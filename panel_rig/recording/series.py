@@ -85,6 +85,8 @@ def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str], dict[str, int]]:
     mcap_path = verify_bag(bag_dir).path
     counts = summary_counts(mcap_path)
     topics = _topics(list(counts))
+    if not any(counts.values()):  # a node stopped before its first step (a fast node waits for its first command)
+        raise RecordingError(f"{bag_dir} holds no messages: the rig stopped before it ran a step")
     if "tip_displacement" not in topics:
         raise RecordingError(f"{bag_dir} has no tip_displacement topic: not a rig recording")
     refused = {n[: -len(REJECTED_SUFFIX)]: c for n, c in counts.items() if n.endswith(REJECTED_SUFFIX)}
