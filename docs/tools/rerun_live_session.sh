@@ -6,5 +6,5 @@ GRPC="$1"
 .venv/bin/python -m panel_rig.ros.node --fast --params config/tang_dowell_2002.yaml --ros-args -r __ns:=/rig \
   --params-file config/rig.yaml -p "rerun:=connect:$GRPC" -p fast:=true -p fast_max_realtime_factor:=20.0 &
 NODE=$!
-.venv/bin/python -m panel_rig.ros.operator config/staircase.yaml --namespace /rig --timeout 30
+.venv/bin/python -m panel_rig.ros.operator --profile config/staircase.yaml --namespace /rig --timeout 30
 kill -INT $NODE; wait $NODE

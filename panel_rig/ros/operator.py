@@ -10,7 +10,7 @@ Profile (a list, or ``{steps: [...]}``), times in the rig's simulated time (so f
     - abort
     - reset
 
-Run: ``rig_operator config/staircase.yaml [--namespace /rig]``.
+Run: ``rig_operator --profile config/staircase.yaml [--namespace /rig] [--timeout S] [--startup-timeout S]``.
 """
 
 from __future__ import annotations
