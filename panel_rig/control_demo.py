@@ -76,7 +76,9 @@ class _Client:
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
         from std_msgs.msg import Float64
 
-        self._rclpy, self._Float64 = rclpy, Float64
+        from panel_rig.ros.messages import rig_status
+
+        self._rclpy, self._Float64, self._rig_status = rclpy, Float64, rig_status
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node("control_demo", namespace="/rig", context=self.ctx)
@@ -97,9 +99,9 @@ class _Client:
         self.airspeed = m.vector.x
 
     def _on_diag(self, m: Any) -> None:
-        for st in m.status:
-            if st.name == "panel_rig: tunnel":
-                self.diag = {kv.key: kv.value for kv in st.values}
+        values = self._rig_status(m, self.node.get_namespace())
+        if values is not None:
+            self.diag = values
 
     def wait(self, cond: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s

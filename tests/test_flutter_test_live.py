@@ -149,6 +149,7 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from panel_rig.recording.series import load_series
+    from panel_rig.ros.messages import rig_status
 
     domain = int(ros_env["ROS_DOMAIN_ID"])
     ctx = rclpy.Context()
@@ -157,10 +158,9 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     commands: list[float] = []
 
     def on_diagnostics(msg: DiagnosticArray) -> None:  # the node's set-point (a second airspeed_cmd subscriber
-        for st in msg.status:  # would make the test refuse to run: it cannot tell it from another rig)
-            values = {kv.key: kv.value for kv in st.values}
-            if st.name == "panel_rig: tunnel" and float(values.get("airspeed_setpoint_mps", "0")) > 0:
-                commands.append(float(values["airspeed_setpoint_mps"]))
+        values = rig_status(msg, "/rig")  # would make the test refuse to run: it cannot tell it from another rig)
+        if values is not None and float(values.get("airspeed_setpoint_mps", "0")) > 0:
+            commands.append(float(values["airspeed_setpoint_mps"]))
 
     watcher.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics,
                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))

@@ -238,6 +238,8 @@ def test_readings_filled_and_stamped_in_simulated_time(fast_node: subprocess.Pop
     assert np.median(np.diff(stamps)) == pytest.approx(1.0 / PUBLISH_HZ, rel=0.1)
     d = client.diag()
     assert d["mode"] == "fast" and float(d["real_time_factor"]) > 1.0
+    status = client.got["diag"][-1].status[0]  # which rig: its namespace (/diagnostics is one topic for all rigs)
+    assert (status.name, status.hardware_id) == ("panel_rig: tunnel", "/rig")
 
 
 def test_airspeed_follows_command_with_first_order_lag(fast_node: subprocess.Popen, client: Client) -> None:
@@ -926,6 +928,35 @@ def test_operator_waits_for_a_rig_that_starts_slowly(ros_env: dict[str, str]) ->
                 proc.send_signal(signal.SIGINT)
                 out, _ = proc.communicate(timeout=30)
                 assert proc.returncode == 0, out[-2000:]
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+def test_operator_takes_only_its_own_rigs_diagnostics(ros_env: dict[str, str]) -> None:
+    """/diagnostics is one topic for every node: an operator of /rig_a took the status of a rig in /rig_b (its
+    set-point, its simulated time as a sign of life, its aborts) as its own rig's. The rig's status carries its
+    namespace as hardware_id; the operator reads its own rig's only."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from panel_rig.ros import operator
+    from panel_rig.ros.messages import diagnostics_msg
+
+    def status(namespace: str, t_s: float) -> Any:
+        return diagnostics_msg(0, DiagnosticStatus.ERROR, "aborted: tip", {
+            "sim_time_s": t_s, "aborts": 1, "airspeed_setpoint_mps": 0.0, "last_abort_time_s": t_s,
+            "abort_reason": f"tip limit in {namespace}"}, hardware_id=namespace)
+
+    rclpy.init(domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = operator.Operator("/rig_a", timeout_s=10.0)
+        try:
+            node._on_diagnostics(status("/rig_b", 12.0))
+            assert node.diag_sim_time_s == -math.inf and not node.aborts and math.isnan(node.setpoint_mps)
+            node._on_diagnostics(status("/rig_a", 7.0))
+            assert node.diag_sim_time_s == 7.0 and node.aborts == {7.0: "tip limit in /rig_a"}
+            assert node.setpoint_mps == 0.0
+        finally:
             node.destroy_node()
     finally:
         rclpy.shutdown()

@@ -22,6 +22,7 @@ from std_msgs.msg import Float64
 from panel_rig.analysis.flutter_test import TestPoint
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest, stop_exception
 from panel_rig.ros.flutter_monitor import STATUS_NAME, TOPIC, parse_monitor, point_from_values
+from panel_rig.ros.messages import rig_status
 
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 MONITOR_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -61,11 +62,11 @@ class FlutterTestClient(Node):
             self._last_heard = time.monotonic()
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if st.name == "panel_rig: tunnel":
-                self.diagnostics = {kv.key: kv.value for kv in st.values}
-                self.diagnostics_received += 1
-                self._last_heard = time.monotonic()
+        values = rig_status(msg, self.get_namespace())
+        if values is not None:
+            self.diagnostics = values
+            self.diagnostics_received += 1
+            self._last_heard = time.monotonic()
 
     @property
     def sim_time_s(self) -> float:

@@ -105,16 +105,30 @@ def shape_msg(
     return m
 
 
-def diagnostics_msg(stamp_ns: int, level: bytes, message: str, values: Mapping[str, object]) -> DiagnosticArray:
+#: the rig's status on /diagnostics (diagnostic_updater's "<node>: <task>" form); its hardware_id is the rig node's
+#: namespace: /diagnostics is global, and a client of one rig took another rig's aborts and set-point as its own
+RIG_STATUS_NAME = "panel_rig: tunnel"
+
+
+def diagnostics_msg(stamp_ns: int, level: bytes, message: str, values: Mapping[str, object],
+                    hardware_id: str = "panel_rig") -> DiagnosticArray:
     """One DiagnosticStatus for the rig at ``level`` (DiagnosticStatus.OK / WARN / ERROR)."""
     status = DiagnosticStatus(
         level=level,
-        name="panel_rig: tunnel",
+        name=RIG_STATUS_NAME,
         message=message,
-        hardware_id="panel_rig",
+        hardware_id=hardware_id,
         values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
     )
     return DiagnosticArray(header=header(stamp_ns, ""), status=[status])
+
+
+def rig_status(msg: DiagnosticArray, namespace: str) -> dict[str, str] | None:
+    """The values of the tunnel status of the rig node in ``namespace`` in a /diagnostics message, else None."""
+    for status in msg.status:
+        if status.name == RIG_STATUS_NAME and status.hardware_id == namespace:
+            return {kv.key: kv.value for kv in status.values}
+    return None
 
 
 class ReadingMessages:

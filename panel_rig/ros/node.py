@@ -519,8 +519,8 @@ class RigNode(Node):
         self._diag_record_errors = recording.errors
         level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error)
         stamp = self.publication.stamp_ns(rig.time_s)
-        self.publication.publish(self.pub_diag, messages.diagnostics_msg(stamp, level, message, values), stamp,
-                                 "reliable")
+        msg = messages.diagnostics_msg(stamp, level, message, values, hardware_id=self.get_namespace())
+        self.publication.publish(self.pub_diag, msg, stamp, "reliable")
 
     def close(self) -> None:
         """Close recorders, then the rig's sinks (idempotent): the bag is closed first, whatever a viewer sink

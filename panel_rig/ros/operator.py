@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from panel_rig.config import ConfigError, load_yaml_file, number_if_text
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest
+from panel_rig.ros.messages import rig_status
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 from panel_rig.topics import REJECTED_SUFFIX
 
@@ -232,16 +233,15 @@ class Operator(Node):
         self._last_msg_wall = time.monotonic()
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            values = {kv.key: kv.value for kv in status.values}
-            if "sim_time_s" not in values or "aborts" not in values:
-                continue  # not the rig's
-            self.diag_sim_time_s = max(self.diag_sim_time_s, float(values["sim_time_s"]))
-            self._last_msg_wall = time.monotonic()  # the rig is alive (a fast node waiting for a command publishes
-            # no readings: only its diagnostics)
-            self.setpoint_mps = float(values.get("airspeed_setpoint_mps", "nan"))
-            if values.get("last_abort_time_s"):
-                self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
+        values = rig_status(msg, self.get_namespace())  # /diagnostics carries every node's, other rigs' too
+        if values is None or "sim_time_s" not in values:
+            return
+        self.diag_sim_time_s = max(self.diag_sim_time_s, float(values["sim_time_s"]))
+        self._last_msg_wall = time.monotonic()  # the rig is alive (a fast node waiting for a command publishes
+        # no readings: only its diagnostics)
+        self.setpoint_mps = float(values.get("airspeed_setpoint_mps", "nan"))
+        if values.get("last_abort_time_s"):
+            self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
 
     def _on_tip(self, msg: PointStamped) -> None:
         if self._samples is not None:
