@@ -158,7 +158,12 @@ def test_a_lost_cluster_keeps_what_arrived_and_says_the_rerun_resumes(base, tmp_
             run_study(study, tmp_path, scheduler=cluster.scheduler_address, flush_s=0.0,
                       on_flush=lambda client, written: client.shutdown())
     finally:
-        cluster.close()
+        import dask
+
+        # the client shut the scheduler down: closing the cluster object then waits for it for the connect
+        # timeout (30 s by default) before it gives up
+        with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+            cluster.close()
     from panel_rig.studies.store import Store
 
     stored = int(Store.open(tmp_path, study).done_mask().sum())
