@@ -192,21 +192,39 @@ def test_monitor_logs_the_zw_flutter_margin_of_each_point_with_both_modes(tmp_pa
     assert _views(path)["ZW flutter margin F per point (Hz^4; flutter where it reaches 0)"] == "/flutter/zw_margin_hz4"
 
 
-def test_the_flutter_views_show_the_whole_test(monitor_rrd) -> None:
-    """One sample per test point, minutes apart: in the viewer's default window at the time cursor the monitor's
-    views showed the last point or two (the whole test is ~20 simulated minutes). Each flutter time-series view sets
-    its time axis to the whole recording; the readings' views keep the default."""
-    path, _ = monitor_rrd
+def _time_axes(path: Path) -> dict[str, bool]:
+    """Time-series view name -> whether the blueprint sets its time axis to the whole recording."""
     reader = RrdReader(path)
     names: dict[str, str] = {}
     whole: set[str] = set()
     for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
         batch = chunk.to_record_batch()
         entity = str(chunk.entity_path)
+        if "ViewBlueprint:class_identifier" in batch.schema.names:
+            if batch.column("ViewBlueprint:class_identifier").to_pylist()[-1][0] != "TimeSeries":
+                continue
         if "ViewBlueprint:display_name" in batch.schema.names:
             names[entity] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
         if "TimeAxis:view_range" in batch.schema.names:
             whole.add(entity.rsplit("/TimeAxis", 1)[0])
-    monitor = ("Flutter monitor", "Flutter margin", "Flutter mode: damping ratio x 1000 (95 %)")
-    assert sorted(names[v] for v in whole) == sorted(n for n in names.values() if n.startswith(monitor))
-    assert len(whole) == 3  # this recording: U_f, margin, damping (no ZW view asked for)
+    return {name: entity in whole for entity, name in names.items()}
+
+
+READINGS_VIEWS = ("Tip deflection w/L", "Modal coordinates q1..q3", "Airspeed (m/s) & shaker (N/m)")
+MONITOR_VIEWS = ("Flutter monitor", "Flutter margin", "Flutter mode: damping ratio x 1000 (95 %)")
+
+
+def test_a_saved_file_shows_the_whole_test_and_a_live_stream_follows_the_cursor(monitor_rrd, tmp_path) -> None:
+    """One sample per test point, minutes apart: in the viewer's default window at the time cursor the monitor's
+    views showed the last point or two (the whole test is ~20 simulated minutes), and a saved run's readings only
+    its last minute. In a saved file every time-series view is set to the whole recording; in a live stream the
+    readings' views keep the viewer's window at the cursor, the monitor's views still show the whole test."""
+    from panel_rig.viz.logger import blueprint
+
+    saved = _time_axes(monitor_rrd[0])
+    assert sorted(saved) == sorted([*READINGS_VIEWS, *(n for n in saved if n.startswith(MONITOR_VIEWS))])
+    assert len(saved) == 6 and all(saved.values()), saved  # U_f, margin, damping (no ZW view asked for)
+    blueprint(3, ("flutter", "flutter_uf", "control")).save("panel_rig", tmp_path / "live.rbl")
+    live = _time_axes(tmp_path / "live.rbl")
+    assert len(live) == 8, live  # the readings' three, the control's two, the monitor's three
+    assert {n for n, w in live.items() if w} == {n for n in live if n.startswith(MONITOR_VIEWS)}

@@ -72,30 +72,38 @@ def modal_entity(i: int) -> str:
     return f"modal/q{i}"
 
 
-def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS) -> Any:
+def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_run: bool = False) -> Any:
     """Default layout: tip, modal, airspeed+shaker time series, the panel shape in 3-D, and of
     `OPTIONAL_VIEWS` those in ``views``: control command and age, the flutter monitor (margin, damping vs time
     and damping vs airspeed), its predicted U_f (there only once a prediction is made), its ZW flutter margin per
-    point (points with both modes identified), the analysis text log."""
+    point (points with both modes identified), the analysis text log.
+
+    ``whole_run``: the readings' and control views show the whole recording (a saved file, looked at afterwards)
+    instead of the viewer's window that follows the time cursor (a live stream). The flutter monitor's views always
+    show the whole test."""
     import rerun.blueprint as rrb
 
     unknown = set(views) - set(OPTIONAL_VIEWS)
     if unknown:
         raise VizError(f"unknown views {sorted(unknown)}; optional views are {OPTIONAL_VIEWS}")
+    whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                  end=rrb.TimeRangeBoundary.infinite()))
+    readings_axis = whole if whole_run else None
     series = [
-        rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L"),
-        rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}"),
+        rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L", axis_x=readings_axis),
+        rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}", axis_x=readings_axis),
         rrb.TimeSeriesView(
-            origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)"
+            origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)",
+            axis_x=readings_axis,
         ),
     ]
     if "control" in views:
-        series += [rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)"),
-                   rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)")]
+        series += [rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)",
+                                      axis_x=readings_axis),
+                   rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)",
+                                      axis_x=readings_axis)]
     if "flutter" in views:
         # one sample per test point (minutes apart): the whole test in view, not the viewer's window at the cursor
-        whole = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
-                                                      end=rrb.TimeRangeBoundary.infinite()))
         if "flutter_uf" in views:
             series.append(rrb.TimeSeriesView(
                 origin=FLUTTER_UF, name="Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)",
@@ -159,7 +167,7 @@ class RerunLogger:
 
         self._rr = rr
         rec = rr.RecordingStream(application_id, send_properties=True)
-        bp = blueprint(n_modes, views)
+        bp = blueprint(n_modes, views, whole_run=mode == "save")
         if mode == "save":
             rec.save(self._save_path(target), default_blueprint=bp)
         else:
