@@ -17,7 +17,7 @@ INTERRUPTED_STATUS = 128 + signal.SIGINT
 TERMINATED_STATUS = 128 + signal.SIGTERM
 BROKEN_PIPE_STATUS = 128 + signal.SIGPIPE
 #: wall seconds a session's client waits for the rig node to come up: a node's first start on an install compiles the
-#: numba kernels (23-28 s on this 2-core machine, more under load; a warm start ~2 s). Silence timeouts count only
+#: numba kernels (23-36 s measured on this 2-core machine, more under load; a warm start ~2 s). Silence timeouts count only
 #: once the rig is up (a fresh clone's first `make run` failed when its operator's 30 s ran out at 28 s)
 RIG_STARTUP_TIMEOUT_S = 180.0
 

@@ -150,3 +150,38 @@ def test_bad_configuration_is_a_clear_error(tmp_path: Path) -> None:
             logger.log_shape(0.0, np.arange(3.0), np.zeros(4))
     finally:
         logger.close()
+
+
+def _blueprint_views(path: Path) -> list[set[str]]:
+    """The view names of each blueprint the file holds."""
+    reader = RrdReader(path)
+    out = []
+    for store in reader.blueprints():
+        names = set()
+        for chunk in reader.stream(store=store).to_chunks():
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:display_name" in batch.schema.names:
+                names.add(batch.column("ViewBlueprint:display_name").to_pylist()[-1][0])
+        out.append(names)
+    return out
+
+
+@pytest.mark.parametrize("controlled", [False, True], ids=["no controller", "controller"])
+def test_control_views_join_the_layout_with_the_first_command(tmp_path: Path, controlled: bool) -> None:
+    """A node's file showed two empty control plots when no controller ran (most runs); they now join the layout
+    (a second, active blueprint) when the first control command is logged, and only then."""
+    path = tmp_path / "run.rrd"
+    logger = RerunLogger(N_MODES, mode="save", target=str(path), views=(), control_views_on_data=True)
+    for k in range(N_LIVE):
+        logger.log_reading(_reading(k))
+        if controlled and k >= 10:
+            logger.log_control(0.01 * k, 0.1, 2.0)
+        logger.flush_blocks()
+    logger.close()
+    control = {"Control command (N/m)", "Control command age (ms)"}
+    layouts = _blueprint_views(path)
+    assert all("Tip deflection w/L" in names for names in layouts)
+    assert len(layouts) == (2 if controlled else 1)
+    assert sum(control <= names for names in layouts) == (1 if controlled else 0)
+    temporal, _ = _row_counts(path)
+    assert temporal["/control/command_npm"] == (N_LIVE - 10 if controlled else 0)

@@ -312,10 +312,11 @@ class RigNode(Node):
             try:
                 from panel_rig.viz import RerunLogger
 
-                # control views always (control can be switched on at run time); the monitor's when it runs
-                views = ("control",) + (("flutter", "flutter_uf", "flutter_zw") if self._flutter_monitor is not None
-                                         else ())
-                self._rerun = RerunLogger(len(self._names), mode=mode, target=target or None, views=views)
+                # the control views once a controller commands (control can be switched on at run time); the
+                # monitor's when it runs
+                views = ("flutter", "flutter_uf", "flutter_zw") if self._flutter_monitor is not None else ()
+                self._rerun = RerunLogger(len(self._names), mode=mode, target=target or None, views=views,
+                                          control_views_on_data=True)
             except Exception as exc:  # noqa: BLE001 (VizError, rerun's own errors, no rerun-sdk)
                 raise StartupError(f"cannot open the Rerun sink {p['rerun']!r}: {type(exc).__name__}: {exc}") from None
             self.rig.sinks.append(self._rerun)

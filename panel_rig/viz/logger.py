@@ -147,7 +147,11 @@ class RerunLogger:
         recording_name: str | None = None,
         batch_period_s: float = 0.1,
         views: Collection[str] = OPTIONAL_VIEWS,
+        control_views_on_data: bool = False,
     ) -> None:
+        """``views``: the optional views of the layout (:func:`blueprint`). ``control_views_on_data``: the control
+        views join the layout when the first control command is logged (a node, where a controller may or may not
+        connect: two empty plots otherwise)."""
         if mode not in MODES:
             raise VizError(f"rerun mode must be one of {MODES}, got {mode!r}")
         if not isinstance(n_modes, int) or n_modes < 1:
@@ -161,13 +165,15 @@ class RerunLogger:
         self._pending_control: list[tuple[float, float, float]] = []
         self._pending_since = time.monotonic()
         self._rec: Any = None
+        self._views = tuple(views)
+        self._control_views_on_data = control_views_on_data and "control" not in self._views
         if mode == "off":
             return
         import rerun as rr
 
         self._rr = rr
         rec = rr.RecordingStream(application_id, send_properties=True)
-        bp = blueprint(n_modes, views, whole_run=mode == "save")
+        bp = self._blueprint()
         if mode == "save":
             rec.save(self._save_path(target), default_blueprint=bp)
         else:
@@ -180,6 +186,15 @@ class RerunLogger:
         self._rec = rec
         self.views_with_flutter = "flutter" in views
         self._log_styles()
+
+    def _blueprint(self) -> Any:
+        return blueprint(self.n_modes, self._views, whole_run=self.mode == "save")
+
+    def _add_control_views(self) -> None:
+        """The first control command: the layout gains the control views (sent as the active blueprint)."""
+        self._views += ("control",)
+        self._control_views_on_data = False
+        self._rec.send_blueprint(self._blueprint(), make_active=True, make_default=True)
 
     # ----------------------------------------------------------------- public API
     @property
@@ -267,6 +282,8 @@ class RerunLogger:
         if self._rec is None:
             return
         if control:
+            if self._control_views_on_data:
+                self._add_control_views()
             rr = self._rr
             arr = np.array(control, dtype=float)
             order = np.argsort(arr[:, 0], kind="stable")
