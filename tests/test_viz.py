@@ -185,3 +185,72 @@ def test_control_views_join_the_layout_with_the_first_command(tmp_path: Path, co
     assert sum(control <= names for names in layouts) == (1 if controlled else 0)
     temporal, _ = _row_counts(path)
     assert temporal["/control/command_npm"] == (N_LIVE - 10 if controlled else 0)
+
+
+def _left_column_shares(path: Path) -> list[dict[str, float]]:
+    """Per blueprint in the file: time-series view name -> its row share in the layout's left column."""
+    reader = RrdReader(path)
+    out = []
+    for store in reader.blueprints():
+        names: dict[str, str] = {}
+        columns: list[tuple[list[str], list[float]]] = []
+        for chunk in reader.stream(store=store).to_chunks():
+            batch = chunk.to_record_batch()
+            cols = batch.schema.names
+            if "ViewBlueprint:display_name" in cols:
+                names[str(chunk.entity_path).lstrip("/")] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
+            if "ContainerBlueprint:row_shares" in cols and "ContainerBlueprint:contents" in cols:
+                columns.append((batch.column("ContainerBlueprint:contents").to_pylist()[-1],
+                                batch.column("ContainerBlueprint:row_shares").to_pylist()[-1]))
+        left = [(ids, shares) for ids, shares in columns if any("Tip" in names.get(i, "") for i in ids)]
+        assert len(left) == 1, columns
+        ids, shares = left[0]
+        out.append({names[i]: s for i, s in zip(ids, shares)})
+    return out
+
+
+def test_the_tip_plot_is_twice_as_tall_as_each_other_plot(tmp_path: Path) -> None:
+    """The viewer labels a plot's y axis only at powers of ten far enough apart on screen: the demo's LCO (tip w/L
+    +-0.65) in a third of a 720-pixel window showed the label "0" alone. The tip gets two shares of the left
+    column, in the first layout and in the one the control views join."""
+    path = tmp_path / "run.rrd"
+    logger = RerunLogger(N_MODES, mode="save", target=str(path), views=(), control_views_on_data=True)
+    for k in range(N_LIVE):
+        logger.log_reading(_reading(k))
+        if k >= 10:
+            logger.log_control(0.01 * k, 0.1, 2.0)
+        logger.flush_blocks()
+    logger.close()
+    layouts = _left_column_shares(path)
+    assert sorted(len(shares) for shares in layouts) == [3, 5]  # the file's blueprints come in no fixed order
+    for shares in layouts:
+        assert shares.pop("Tip deflection w/L") == 2.0
+        assert set(shares.values()) == {1.0}, shares
+
+
+def test_operator_commands_are_markers_beside_what_they_set(tmp_path: Path) -> None:
+    """A bag's replay draws the held shaker force only (the sine generator's output is not recorded): a shaker tap
+    showed nowhere. The accepted set-point, sine amplitude and held-force commands are markers in the airspeed and
+    shaker view, live and replayed; a refused command is not drawn."""
+    path = tmp_path / "run.rrd"
+    logger = RerunLogger(N_MODES, mode="save", target=str(path), views=())
+    logger.log_reading(_reading(0))
+    logger.on_command("airspeed_cmd", 9.0, True, 0.5)
+    logger.on_command("shaker/amplitude_cmd", 0.3, True, 1.0)
+    logger.on_command("shaker/amplitude_cmd", 0.0, True, 1.5)
+    logger.on_command("shaker/force_cmd", 1e9, False, 1.6)
+    logger.close()
+    temporal, _ = _row_counts(path)
+    assert temporal["/commands/airspeed_cmd"] == 1 and temporal["/commands/shaker/amplitude_cmd"] == 2
+    assert temporal["/commands/shaker/force_cmd"] == 0
+    reader = RrdReader(path)
+    markers = {str(c.entity_path) for c in reader.stream().to_chunks()
+               if c.is_static and "SeriesPoints:names" in c.to_record_batch().schema.names}
+    assert {"/commands/airspeed_cmd", "/commands/shaker/amplitude_cmd", "/commands/shaker/force_cmd"} <= markers
+    queries = []
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        if "ViewContents:query" in batch.schema.names:
+            queries.append(batch.column("ViewContents:query").to_pylist()[-1])
+    view = next(q for q in queries if "airspeed/**" in q)
+    assert {"commands/airspeed_cmd", "commands/shaker/amplitude_cmd", "commands/shaker/force_cmd"} <= set(view)

@@ -25,6 +25,14 @@ FORCE = "shaker/force_npm"
 SHAPE = "panel/shape"
 CONTROL_CMD = "control/command_npm"
 CONTROL_AGE = "control/latency_ms"
+#: the accepted operator commands drawn as markers beside the airspeed and shaker force they set (N/m, m/s): in a
+#: bag's replay the force line is only the held force (the sine generator's output is not recorded), so the
+#: amplitude markers are what shows a shaker tap there
+COMMAND_MARKERS = {
+    "commands/airspeed_cmd": ("airspeed set-point m/s", [0, 90, 0]),
+    "commands/shaker/amplitude_cmd": ("shaker sine amplitude N/m", [255, 127, 14]),
+    "commands/shaker/force_cmd": ("shaker held force N/m", [140, 86, 75]),
+}
 # the flutter monitor: predicted U_f (and its interval, m/s), the margin (unitless: its own view) and the
 # identified damping (x 1000, 95 % interval) vs time, one sample per test point; damping vs airspeed (2-D)
 FLUTTER_UF = "flutter/predicted_uf_mps"
@@ -44,6 +52,8 @@ FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
 # average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
 # its envelope at any zoom.
 AGGREGATION = "MinMax"
+#: the tip plot's height against each other time-series plot of the layout
+TIP_ROW_SHARE = 2
 
 
 #: name and colour of the flutter monitor's series; each sample (one per test point) is a marker too, so a
@@ -93,8 +103,8 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
         rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L", axis_x=readings_axis),
         rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}", axis_x=readings_axis),
         rrb.TimeSeriesView(
-            origin="/", contents=["airspeed/**", "shaker/**"], name="Airspeed (m/s) & shaker (N/m)",
-            axis_x=readings_axis,
+            origin="/", contents=["airspeed/**", "shaker/**", *COMMAND_MARKERS],
+            name="Airspeed (m/s) & shaker (N/m)", axis_x=readings_axis,
         ),
     ]
     if "control" in views:
@@ -130,8 +140,10 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
                                        name="Flutter mode: damping ratio x 1000 (up) vs airspeed (m/s)"))
     if "analysis" in views:
         right.append(rrb.TextLogView(origin=ANALYSIS, name="Analysis: plateau status and flutter onset"))
-    return rrb.Blueprint(rrb.Horizontal(rrb.Vertical(*series), rrb.Vertical(*right), column_shares=[3, 2]),
-                         collapse_panels=True)
+    # The tip gets twice the height of each other plot: the viewer labels its y axis only at powers of ten far
+    # enough apart on screen, and an LCO of tip w/L +-0.65 in a third of a 720-pixel window got the label "0" alone.
+    left = rrb.Vertical(*series, row_shares=[TIP_ROW_SHARE] + [1] * (len(series) - 1))
+    return rrb.Blueprint(rrb.Horizontal(left, rrb.Vertical(*right), column_shares=[3, 2]), collapse_panels=True)
 
 
 class RerunLogger:
@@ -394,6 +406,8 @@ class RerunLogger:
             for entity, (name, color) in FLUTTER_STYLES.items():
                 rec.log(entity, rr.SeriesLines(names=name, colors=[color], widths=1.5), static=True)
                 rec.log(entity, rr.SeriesPoints(names=name, colors=[color], marker_sizes=4.0), static=True)
+        for entity, (name, color) in COMMAND_MARKERS.items():
+            rec.log(entity, rr.SeriesPoints(names=name, colors=[color], marker_sizes=3.0), static=True)
         palette = [[255, 127, 14], [148, 103, 189], [140, 86, 75], [227, 119, 194], [23, 190, 207]]
         for i in range(1, self.n_modes + 1):
             styles[modal_entity(i)] = (f"q{i}", palette[(i - 1) % len(palette)])
