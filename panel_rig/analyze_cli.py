@@ -39,8 +39,8 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     }
     replay = _replay(rec)
     result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
-    result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result)
-                       if plots_dir is not None else [])
+    result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result,
+                                   rec.commands) if plots_dir is not None else [])
     if plots_dir is not None and replay is not None and replay.points:
         result["plots"].append(_plot_replay(replay, Path(plots_dir) / FLUTTER_TEST_PLOT))
     result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None

@@ -137,6 +137,25 @@ def test_plateaus_status_and_onset_on_synthetic_bag(synthetic: Path, tmp_path: P
     assert all(Path(p).stat().st_size > 10_000 for p in res["plots"])
 
 
+
+def test_the_time_history_marks_each_shaker_tap(synthetic: Path, tmp_path: Path, monkeypatch) -> None:
+    """The time history showed the plateaus but not the taps whose ring-downs it shades: each accepted shaker
+    command that drives the panel (held force or sine amplitude not 0) is marked; a command switching it off is
+    not."""
+    from panel_rig.analysis import plots
+
+    drawn = {}
+    real = plots.plot_time_history
+
+    def spy(*args, **kwargs):
+        drawn["shaker_on_s"] = list(args[5] if len(args) > 5 else kwargs.get("shaker_on_s", ()))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(plots, "plot_time_history", spy)
+    analyze_bag(synthetic, plots_dir=tmp_path / "plots")
+    taps = [k * PLATEAU_S + TAP_AT_S for k, (_, rate, _) in enumerate(PLATEAUS) if rate is not None]
+    assert drawn["shaker_on_s"] == pytest.approx(taps, abs=1e-3)
+
 def test_cli_table_and_json(synthetic: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([str(synthetic), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)

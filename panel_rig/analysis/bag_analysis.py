@@ -330,15 +330,23 @@ def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.n
     }
 
 
+def shaker_on_times(commands: Commands) -> list[float]:
+    """Times (s) of the accepted shaker commands that drive the panel: a sine amplitude or a held force not 0."""
+    return sorted(t for name in ("shaker/amplitude_cmd", "shaker/force_cmd")
+                  for t, value in commands.get(name, []) if value != 0.0)
+
+
 def write_plots(plots_dir: Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
-                result: dict[str, Any]) -> list[str]:
-    """Time history, spectrogram and amplitude/frequency vs airspeed (Fig. 8) as PNG."""
+                result: dict[str, Any], commands: Commands | None = None) -> list[str]:
+    """Time history (with the shaker commands of ``commands`` marked), spectrogram and amplitude/frequency vs
+    airspeed (Fig. 8) as PNG."""
     from panel_rig.analysis import plots
 
     plots_dir = Path(plots_dir)
     spans = [(p["t_start_s"], p["t_end_s"], p["status"]) for p in result["plateaus"]]
     paths = [
-        plots.plot_time_history(plots_dir / "time_history.png", t_s, tip_w_over_L, airspeed_mps, spans),
+        plots.plot_time_history(plots_dir / "time_history.png", t_s, tip_w_over_L, airspeed_mps, spans,
+                                shaker_on_times(commands or {})),
         plots.plot_spectrogram(plots_dir / "spectrogram.png", t_s, tip_w_over_L, airspeed_mps),
         plots.plot_lco_vs_airspeed(plots_dir / "lco_vs_airspeed.png", result["plateaus"], result["onset"]),
     ]

@@ -112,10 +112,15 @@ _STATUS_STYLE = {"lco": ("C3", "o"), "growing": ("C1", "^"), "decaying": ("C0", 
 
 
 def plot_time_history(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
-                      spans: Sequence[tuple[float, float, str]] = ()) -> Path:
-    """Recording: tip w/L and measured airspeed versus time, plateaus shaded by status."""
+                      spans: Sequence[tuple[float, float, str]] = (), shaker_on_s: Sequence[float] = ()) -> Path:
+    """Recording: tip w/L and measured airspeed versus time, plateaus shaded by status, the times the shaker was
+    switched on (``shaker_on_s``) marked above the tip."""
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True, height_ratios=[2, 1])
     ax1.plot(t_s, tip_w_over_L, lw=0.5, color="C0")
+    if len(shaker_on_s):
+        ax1.plot(shaker_on_s, np.full(len(shaker_on_s), 0.96), "v", color="C3", ms=6,
+                 transform=ax1.get_xaxis_transform(), label="shaker on (sine amplitude or held force)")
+        ax1.legend(loc="lower left", fontsize=7)
     ax2.plot(t_s, airspeed_mps, lw=1.2, color="C2")
     u_max = float(np.nanmax(airspeed_mps)) if np.any(np.isfinite(airspeed_mps)) else 0.0
     if spans:  # a band below 0 m/s for the status labels: on the curve's level they sat on it (wind off, at 0)
