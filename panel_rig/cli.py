@@ -66,7 +66,7 @@ def _emit(args: argparse.Namespace, payload: dict[str, Any], table: Callable[[],
 
 # ---- subcommands ------------------------------------------------------------------------------
 LINEAR_NOTE = ("linear analysis: every variant linearises at rest to the same model (the cubic terms vanish; exact: "
-               "its own M(0) by quadrature, = m_p L^3 I to ~2e-9)")
+               "its own M(0) by quadrature, = m_p L^3 I to 1.5e-9)")
 
 
 def cmd_modes(args: argparse.Namespace) -> int:
@@ -611,25 +611,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="closed loop with the reference controller, the control actuator and the loop delay")
     p.add_argument("--delay-ms", type=float, help="--control: total loop delay, ms (default: the design delay)")
     p.add_argument("--command-age-ms", type=float,
-                   help="--control: a measured mean command age, ms (adds half a controller period and a physics step)")
+                   help="--control: a measured mean command age, ms (the loop delay adds half a controller period and "
+                        "half a physics step)")
     p.add_argument("--rate-hz", type=float, help="--control: controller rate, Hz (default 500)")
     p.add_argument("--actuator-bandwidth-hz", type=float, help="--control: default control.bandwidth_hz")
     p.set_defaults(func=cmd_flutter)
 
     def model_opts(p: argparse.ArgumentParser, aero: bool = True) -> None:
-        p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT)
+        p.add_argument("--variant", choices=tuple(VARIANTS), default=DEFAULT_VARIANT,
+                       help="structure (default: %(default)s)")
         p.add_argument("--scheme", choices=SCHEMES, default=DEFAULT_SCHEME,
                        help="implicit: consistent midpoint; paper: Eq. (24) nonlinear mass at t; "
-                            "paper_literal: dM multiplying only the new state")
+                            "paper_literal: dM multiplying only the new state (default: %(default)s)")
         if aero:
-            p.add_argument("--aero", choices=RIG_AERO_MODELS, default=DEFAULT_AERO)
+            p.add_argument("--aero", choices=RIG_AERO_MODELS, default=DEFAULT_AERO,
+                           help="aerodynamics: the reduced-order model or the full lattice (default: %(default)s)")
         p.add_argument("--plot", metavar="FILE.png")
 
     p = sub.add_parser("lco", help="limit-cycle run at one airspeed (Figs. 4, 6, 7)")
     _common(p)
     model_opts(p)
     p.add_argument("--airspeed", type=float, required=True, metavar="U", help="m/s")
-    p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds")
+    p.add_argument("--duration", type=float, default=30.0, metavar="T", help="simulated seconds (default: %(default)s)")
     p.add_argument("--turbulence-intensity", type=float, metavar="X",
                    help="run in the tunnel from rest with this turbulence intensity sigma/U (sets "
                         "tunnel.turbulence.intensity; 0 = quiet tunnel from rest); without it and --seed: the paper's "
@@ -641,16 +644,17 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     model_opts(p)
     p.add_argument("--airspeeds", required=True, metavar="START:STOP:STEP")
-    p.add_argument("--duration", type=float, default=30.0, metavar="T")
+    p.add_argument("--duration", type=float, default=30.0, metavar="T",
+                   help="simulated seconds per airspeed (default: %(default)s)")
     p.set_defaults(func=cmd_lco_sweep)
 
     p = sub.add_parser("forced", help="forced response without aero, protocol F0 (Fig. 2)")
     _common(p)
     model_opts(p, aero=False)
     p.add_argument("--band", type=float, nargs=2, required=True, metavar=("F0", "F1"), help="Hz")
-    p.add_argument("--step", type=float, default=0.1, metavar="DF", help="Hz")
-    p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m")
-    p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency")
+    p.add_argument("--step", type=float, default=0.1, metavar="DF", help="Hz (default: %(default)s)")
+    p.add_argument("--f0", type=float, default=0.05, help="force amplitude at the trailing edge, N/m (default: %(default)s)")
+    p.add_argument("--dwell", type=float, default=20.0, help="seconds per frequency (default: %(default)s)")
     p.set_defaults(func=cmd_forced)
 
     p = sub.add_parser("gust", help="lift of the rigid lattice in a convected sinusoidal gust vs the Sears function")
@@ -676,7 +680,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed")
+    p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed (default: %(default)s)")
     p.set_defaults(func=cmd_paper)
 
     p = sub.add_parser("study", help="parameter study on Dask: flutter map, uncertainty, bifurcation (docs/studies.md)")

@@ -315,7 +315,8 @@ def onset_summary(rates: Sequence[float], pred_mps: float) -> dict[str, Any]:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="panel-rig control-demo", description=__doc__.splitlines()[0])
     ap.add_argument("--delay-ms", type=float, default=2.0,
-                    help="command age the rig emulates (lock-step), ms; e.g. the p99 of benchmarks/control_latency.py")
+                    help="command age the rig emulates (lock-step), ms; e.g. the p99 of benchmarks/control_latency.py; its "
+                         "prediction is panel-rig flutter --control --command-age-ms (default: %(default)s)")
     ap.add_argument("--out", default="out/control_demo")
     ap.add_argument("--bag-dir", default="bags")
     ap.add_argument("--json", action="store_true")
