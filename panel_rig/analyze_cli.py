@@ -251,8 +251,9 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     """The `analyze` options."""
     p.add_argument("bag", metavar="BAG", help="rosbag2 directory (metadata.yaml + .mcap)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    p.add_argument("--plots", metavar="DIR", help="write time_history/spectrogram/lco_vs_airspeed PNGs here (and flutter_test_vg.png when the "
-                   "flutter-test replay identified a point)")
+    p.add_argument("--plots", metavar="DIR",
+                   help="write time_history/spectrogram/lco_vs_airspeed PNGs here (and flutter_test_vg.png when the "
+                        "flutter-test replay identified a point)")
     p.add_argument("--rerun", metavar="OUT.rrd", help="write the replay as a Rerun recording")
 
 
