@@ -137,7 +137,6 @@ def test_plateaus_status_and_onset_on_synthetic_bag(synthetic: Path, tmp_path: P
     assert all(Path(p).stat().st_size > 10_000 for p in res["plots"])
 
 
-
 def test_the_time_history_marks_each_shaker_tap(synthetic: Path, tmp_path: Path, monkeypatch) -> None:
     """The time history showed the plateaus but not the taps whose ring-downs it shades: each accepted shaker
     command that drives the panel (held force or sine amplitude not 0) is marked; a command switching it off is
@@ -155,6 +154,7 @@ def test_the_time_history_marks_each_shaker_tap(synthetic: Path, tmp_path: Path,
     analyze_bag(synthetic, plots_dir=tmp_path / "plots")
     taps = [k * PLATEAU_S + TAP_AT_S for k, (_, rate, _) in enumerate(PLATEAUS) if rate is not None]
     assert drawn["shaker_on_s"] == pytest.approx(taps, abs=1e-3)
+
 
 def test_cli_table_and_json(synthetic: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([str(synthetic), "--json"]) == 0

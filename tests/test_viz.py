@@ -6,6 +6,7 @@ import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -152,18 +153,30 @@ def test_bad_configuration_is_a_clear_error(tmp_path: Path) -> None:
         logger.close()
 
 
-def _blueprint_views(path: Path) -> list[set[str]]:
-    """The view names of each blueprint the file holds."""
+def _blueprints(path: Path) -> list[list[tuple[str, dict[str, Any]]]]:
+    """Each blueprint the file holds, as (entity path without the leading "/", {component: its last value})
+    per chunk."""
     reader = RrdReader(path)
     out = []
     for store in reader.blueprints():
-        names = set()
+        rows = []
         for chunk in reader.stream(store=store).to_chunks():
             batch = chunk.to_record_batch()
-            if "ViewBlueprint:display_name" in batch.schema.names:
-                names.add(batch.column("ViewBlueprint:display_name").to_pylist()[-1][0])
-        out.append(names)
+            rows.append((str(chunk.entity_path).lstrip("/"),
+                         {n: batch.column(n).to_pylist()[-1] for n in batch.schema.names if ":" in n}))
+        out.append(rows)
     return out
+
+
+def _view_names(blueprint: list[tuple[str, dict[str, Any]]]) -> dict[str, str]:
+    """View entity path -> display name, in one blueprint of :func:`_blueprints`."""
+    return {entity: values["ViewBlueprint:display_name"][0] for entity, values in blueprint
+            if "ViewBlueprint:display_name" in values}
+
+
+def _blueprint_views(path: Path) -> list[set[str]]:
+    """The view names of each blueprint the file holds."""
+    return [set(_view_names(bp).values()) for bp in _blueprints(path)]
 
 
 @pytest.mark.parametrize("controlled", [False, True], ids=["no controller", "controller"])
@@ -189,19 +202,11 @@ def test_control_views_join_the_layout_with_the_first_command(tmp_path: Path, co
 
 def _left_column_shares(path: Path) -> list[dict[str, float]]:
     """Per blueprint in the file: time-series view name -> its row share in the layout's left column."""
-    reader = RrdReader(path)
     out = []
-    for store in reader.blueprints():
-        names: dict[str, str] = {}
-        columns: list[tuple[list[str], list[float]]] = []
-        for chunk in reader.stream(store=store).to_chunks():
-            batch = chunk.to_record_batch()
-            cols = batch.schema.names
-            if "ViewBlueprint:display_name" in cols:
-                names[str(chunk.entity_path).lstrip("/")] = batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]
-            if "ContainerBlueprint:row_shares" in cols and "ContainerBlueprint:contents" in cols:
-                columns.append((batch.column("ContainerBlueprint:contents").to_pylist()[-1],
-                                batch.column("ContainerBlueprint:row_shares").to_pylist()[-1]))
+    for bp in _blueprints(path):
+        names = _view_names(bp)
+        columns = [(v["ContainerBlueprint:contents"], v["ContainerBlueprint:row_shares"]) for _, v in bp
+                   if "ContainerBlueprint:row_shares" in v and "ContainerBlueprint:contents" in v]
         left = [(ids, shares) for ids, shares in columns if any("Tip" in names.get(i, "") for i in ids)]
         assert len(left) == 1, columns
         ids, shares = left[0]
@@ -243,14 +248,10 @@ def test_operator_commands_are_markers_beside_what_they_set(tmp_path: Path) -> N
     temporal, _ = _row_counts(path)
     assert temporal["/commands/airspeed_cmd"] == 1 and temporal["/commands/shaker/amplitude_cmd"] == 2
     assert temporal["/commands/shaker/force_cmd"] == 0
-    reader = RrdReader(path)
-    markers = {str(c.entity_path) for c in reader.stream().to_chunks()
+    markers = {str(c.entity_path) for c in RrdReader(path).stream().to_chunks()
                if c.is_static and "SeriesPoints:names" in c.to_record_batch().schema.names}
     assert {"/commands/airspeed_cmd", "/commands/shaker/amplitude_cmd", "/commands/shaker/force_cmd"} <= markers
-    queries = []
-    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
-        batch = chunk.to_record_batch()
-        if "ViewContents:query" in batch.schema.names:
-            queries.append(batch.column("ViewContents:query").to_pylist()[-1])
-    view = next(q for q in queries if "airspeed/**" in q)
+    (blueprint,) = _blueprints(path)
+    view = next(v["ViewContents:query"] for _, v in blueprint
+                if "airspeed/**" in v.get("ViewContents:query", []))
     assert {"commands/airspeed_cmd", "commands/shaker/amplitude_cmd", "commands/shaker/force_cmd"} <= set(view)
