@@ -469,19 +469,19 @@ def cmd_study(args: argparse.Namespace) -> int:
 def _node_main(argv: Sequence[str]) -> int:
     from panel_rig.ros.rig_node import main
 
-    return main(argv)
+    return main(argv, prog="panel-rig run")
 
 
 def _operator_main(argv: Sequence[str]) -> int:
     from panel_rig.ros.operator import main
 
-    return main(argv)
+    return main(argv, prog="panel-rig operate")
 
 
 def _control_main(argv: Sequence[str]) -> int:
     from panel_rig.ros.controller import main
 
-    return main(argv)
+    return main(argv, prog="panel-rig control")
 
 
 def _control_demo_main(argv: Sequence[str]) -> int:

@@ -1,12 +1,16 @@
-"""Console entry points: a Ctrl-C while the program is still being imported ends with one line and status 130."""
+"""Console entry points: a Ctrl-C while the program is still being imported ends with one line and status 130; each
+program names itself as the user called it."""
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 from importlib.metadata import entry_points
 
-from panel_rig import entry
+import pytest
+
+from panel_rig import cli, entry
 from panel_rig.processes import INTERRUPTED_STATUS
 
 SLOW_MODULE = "import os, signal\nos.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while this module loads\n"
@@ -38,3 +42,31 @@ def test_installed_commands_go_through_the_entry_module():
     }
     for value in scripts.values():
         assert callable(getattr(entry, value.split(":")[1]))
+
+
+@pytest.mark.parametrize(("command", "usage"), [
+    (["run", "--help"], "usage: panel-rig run"),
+    (["operate", "--help"], "usage: panel-rig operate"),
+    (["control", "--help"], "usage: panel-rig control"),
+    (["operate", "--profile", "config/staircase.yaml", "--timeout", "-1"], "panel-rig operate: --timeout"),
+])
+def test_programs_behind_panel_rig_give_the_command_the_user_typed(command, usage, capsys):
+    """`panel-rig run --help` said "usage: rig_node" (the ros2-run name) where the user had typed `panel-rig run`."""
+    try:
+        code = cli.main(command)
+    except SystemExit as done:  # argparse's --help
+        code = done.code
+    out = capsys.readouterr()
+    assert code in (0, 2)
+    assert (out.out + out.err).startswith(usage), out
+
+
+@pytest.mark.parametrize(("main", "usage"), [
+    ("panel_rig.ros.rig_node", "usage: rig_node"),
+    ("panel_rig.ros.operator", "usage: rig_operator"),
+    ("panel_rig.ros.controller", "usage: rig_controller"),
+])
+def test_the_installed_programs_keep_their_own_names(main, usage, capsys):
+    with pytest.raises(SystemExit):
+        importlib.import_module(main).main(["--help"])
+    assert capsys.readouterr().out.startswith(usage)

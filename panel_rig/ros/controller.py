@@ -185,17 +185,18 @@ def report_line(readings: int, sent: int, clipped: int, airspeed_mps: float, nam
     return f"commands sent {sent}, clipped {clipped}, airspeed {airspeed_mps:.2f} m/s"
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point (``panel-rig control``). argv excludes the program name."""
+def main(argv: Sequence[str] | None = None, *, prog: str = "rig_controller") -> int:
+    """Entry point (``rig_controller``; ``panel-rig control``). argv excludes the program name; ``prog`` is the
+    name its messages and ``--help`` give."""
     from rclpy.utilities import remove_ros_args
 
     args = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="panel-rig control", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="physics parameters for the design (default: the paper's)")
     problem = ros_arguments_problem(args)
     if problem:
-        print(f"panel-rig control: {problem}", file=sys.stderr)
+        print(f"{prog}: {problem}", file=sys.stderr)
         return 2
     opts = parser.parse_args(remove_ros_args(["controller", *args])[1:])
     stop = threading.Event()
@@ -210,7 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 executor.spin_once(timeout_sec=0.05)
             node.get_logger().info(f"stopping: {node.sent} commands sent, {node.clipped} clipped")
         except Exception as exc:  # noqa: BLE001 (one line and exit 2, never a traceback wall)
-            print(f"panel-rig control: {type(exc).__name__}: {exc}", file=sys.stderr)
+            print(f"{prog}: {type(exc).__name__}: {exc}", file=sys.stderr)
             code = 2
         finally:
             if node is not None:

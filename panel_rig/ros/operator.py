@@ -425,13 +425,14 @@ def format_summary(summary: Sequence[StepSummary]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name."""
+def main(argv: Sequence[str] | None = None, *, prog: str = "rig_operator") -> int:
+    """Entry point (``rig_operator``; ``panel-rig operate``). argv excludes the program name; ``prog`` is the name
+    its messages and ``--help`` give."""
     from rclpy.executors import ExternalShutdownException
     from rclpy.utilities import remove_ros_args
 
     args = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="rig_operator", description="play a profile against the panel_rig node")
+    parser = argparse.ArgumentParser(prog=prog, description="play a profile against the panel_rig node")
     parser.add_argument("--profile", required=True, metavar="FILE.yaml", help="YAML profile (see config/staircase.yaml)")
     parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
     parser.add_argument("--timeout", type=float, default=10.0,
@@ -441,7 +442,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "start compiles the kernels)")
     problem = ros_arguments_problem(args)
     if problem:
-        print(f"rig_operator: {problem}", file=sys.stderr)
+        print(f"{prog}: {problem}", file=sys.stderr)
         return 2
     opts = parser.parse_args(remove_ros_args(["rig_operator", *args])[1:])
     problem = namespace_problem(opts.namespace)
@@ -452,12 +453,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif problem:
         problem = f"--namespace {opts.namespace!r}: {problem}"
     if problem:
-        print(f"rig_operator: {problem}", file=sys.stderr)
+        print(f"{prog}: {problem}", file=sys.stderr)
         return 2
     try:
         steps = load_profile(opts.profile)
     except ProfileError as exc:
-        print(f"rig_operator: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     # SIGINT/SIGTERM set a flag that the spin loop turns into a clean stop (130 / 143): rclpy's handler shut the
     # context down under whatever call was running, Python's raised KeyboardInterrupt inside rclpy (Operator._spin)
@@ -469,13 +470,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             summary = node.play(steps)
             print(format_summary(summary))
         except RigUnavailable as exc:
-            print(f"rig_operator: {exc}", file=sys.stderr)
+            print(f"{prog}: {exc}", file=sys.stderr)
             if node.played:
                 print(format_summary(node.played))
             code = 1
         except (KeyboardInterrupt, ExternalShutdownException):  # a stop requested by a signal
             code = stop.exit_status
-            print(stopped_note(node, len(steps)), file=sys.stderr)
+            print(f"{prog}: {stopped_note(node, len(steps))}", file=sys.stderr)
             if node.played:
                 print(format_summary(node.played))
         finally:
@@ -484,11 +485,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def stopped_note(node: Operator, n_steps: int) -> str:
-    """Wind off after a stopped profile, and the line saying so (the tunnel was left at the last set-point)."""
+    """Wind off after a stopped profile, and the line saying so, without the program's name (the tunnel was left
+    at the last set-point)."""
     at = len(node.played) + 1
     if node.wind_off():
-        return f"rig_operator: stopped at step {at} of {n_steps}: tunnel commanded to 0 m/s, shaker off"
-    return (f"rig_operator: stopped at step {at} of {n_steps}: the rig did not confirm the wind-off commands "
+        return f"stopped at step {at} of {n_steps}: tunnel commanded to 0 m/s, shaker off"
+    return (f"stopped at step {at} of {n_steps}: the rig did not confirm the wind-off commands "
             "(0 m/s, shaker off); check it")
 
 

@@ -119,14 +119,15 @@ def start_overrides(param_files: Sequence[str], rcl_args: Sequence[str], fast: b
     return overrides + [Parameter("fast", value=True)] if fast else overrides
 
 
-def parse_args(argv: Sequence[str]) -> tuple[Any, list[str]]:
+def parse_args(argv: Sequence[str], prog: str = "rig_node") -> tuple[Any, list[str]]:
     """(own options, full argument list for rclpy). Own options are whatever is not a ROS argument
-    (rclpy's ``remove_ros_args``): ``--fast``, ``--params FILE`` (repeatable)."""
+    (rclpy's ``remove_ros_args``): ``--fast``, ``--params FILE`` (repeatable). ``prog`` names the program in
+    ``--help`` and usage errors."""
     import argparse
 
     from rclpy.utilities import remove_ros_args
 
-    parser = argparse.ArgumentParser(prog="rig_node", description="panel_rig emulated wind tunnel node")
+    parser = argparse.ArgumentParser(prog=prog, description="panel_rig emulated wind tunnel node")
     parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="a 'panel_rig:' parameters file applied in any namespace (repeatable)")
@@ -134,8 +135,10 @@ def parse_args(argv: Sequence[str]) -> tuple[Any, list[str]]:
     return parser.parse_args(own), ["rig_node", *argv]
 
 
-def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None) -> int:
-    """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name. Returns an exit code.
+def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | None = None, *,
+         prog: str = "rig_node") -> int:
+    """Entry point (``rig_node``; ``panel-rig run``). argv excludes the program name; ``prog`` is the name its
+    messages and ``--help`` give (the command the user typed). Returns an exit code.
 
     Own options anywhere outside ``--ros-args ... [--]``: ``--fast``, ``--params FILE`` (see
     :func:`overrides_from_files`).
@@ -143,13 +146,13 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
     args = sys.argv[1:] if argv is None else list(argv)
     problem = ros_arguments_problem(args)
     if problem:
-        print(f"rig_node: {problem}", file=sys.stderr)
+        print(f"{prog}: {problem}", file=sys.stderr)
         return 2
-    opts, rcl_args = parse_args(args)
+    opts, rcl_args = parse_args(args, prog)
     try:
         overrides = start_overrides(opts.params, rcl_args, opts.fast)
     except StartupError as exc:
-        print(f"rig_node: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
 
     stop = threading.Event()
@@ -165,7 +168,7 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
         except StartupError as exc:
             logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
             logger.error(str(exc))
-            print(f"rig_node: {exc}", file=sys.stderr)
+            print(f"{prog}: {exc}", file=sys.stderr)
             code = 2
         finally:
             if node is not None:
