@@ -255,3 +255,32 @@ def test_operator_commands_are_markers_beside_what_they_set(tmp_path: Path) -> N
     view = next(v["ViewContents:query"] for _, v in blueprint
                 if "airspeed/**" in v.get("ViewContents:query", []))
     assert {"commands/airspeed_cmd", "commands/shaker/amplitude_cmd", "commands/shaker/force_cmd"} <= set(view)
+
+
+def _columns(path: Path) -> list[list[set[str]]]:
+    """Per blueprint in the file: the view names of each container that holds views directly."""
+    out = []
+    for bp in _blueprints(path):
+        names = _view_names(bp)
+        out.append([{names[i] for i in v["ContainerBlueprint:contents"] if i in names} for _, v in bp
+                    if "ContainerBlueprint:contents" in v])
+    return [[c for c in columns if c] for columns in out]
+
+
+def test_the_flutter_monitor_has_a_column_of_its_own(tmp_path: Path) -> None:
+    """Below the readings, seven plots shared one column: a flutter test's tip response (~1e-4 L) and its damping
+    per point got no y-axis numbers (the viewer's labels need room). The monitor's plots now stand in a column of
+    their own, the readings keep theirs (tip twice as tall), and a run without the monitor keeps two columns."""
+    with_monitor = tmp_path / "flutter.rrd"
+    logger = RerunLogger(N_MODES, mode="save", target=str(with_monitor), views=("flutter", "flutter_uf",
+                                                                                "flutter_zw"))
+    logger.close()
+    columns = _columns(with_monitor)[0]
+    readings = next(c for c in columns if "Tip deflection w/L" in c)
+    monitor = next(c for c in columns if any(name.startswith("Flutter margin") for name in c))
+    assert len(readings) == 3 and not any("lutter" in name or "ZW" in name for name in readings), readings
+    assert len(monitor) == 4 and all("lutter" in name or "ZW" in name for name in monitor), monitor
+    assert _left_column_shares(with_monitor)[0]["Tip deflection w/L"] == 2.0
+    without = tmp_path / "run.rrd"
+    RerunLogger(N_MODES, mode="save", target=str(without), views=()).close()
+    assert len(_columns(without)[0]) == 2

@@ -112,20 +112,21 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
                                       axis_x=readings_axis),
                    rrb.TimeSeriesView(origin="/", contents=[CONTROL_AGE], name="Control command age (ms)",
                                       axis_x=readings_axis)]
+    monitor: list[Any] = []
     if "flutter" in views:
         # one sample per test point (minutes apart): the whole test in view, not the viewer's window at the cursor
         if "flutter_uf" in views:
-            series.append(rrb.TimeSeriesView(
+            monitor.append(rrb.TimeSeriesView(
                 origin=FLUTTER_UF, name="Flutter monitor: predicted U_f and 95 % interval; each predictor (m/s)",
                 axis_x=whole))
-        series += [
+        monitor += [
             rrb.TimeSeriesView(origin=FLUTTER_MARGIN, name="Flutter margin 1 - U/U_f and required (unitless)",
                                axis_x=whole),
             rrb.TimeSeriesView(origin=FLUTTER_DAMPING, name="Flutter mode: damping ratio x 1000 (95 %) per point",
                                axis_x=whole),
         ]
         if "flutter_zw" in views:
-            series.append(rrb.TimeSeriesView(
+            monitor.append(rrb.TimeSeriesView(
                 origin=FLUTTER_ZW, name="ZW flutter margin F per point (Hz^4; flutter where it reaches 0)",
                 axis_x=whole))
     # Side view of the x-z plane (chord along x, deflection up along z), framing about 1 m.
@@ -142,8 +143,14 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
         right.append(rrb.TextLogView(origin=ANALYSIS, name="Analysis: plateau status and flutter onset"))
     # The tip gets twice the height of each other plot: the viewer labels its y axis only at powers of ten far
     # enough apart on screen, and an LCO of tip w/L +-0.65 in a third of a 720-pixel window got the label "0" alone.
+    # For the same reason the flutter monitor's plots get a column of their own: below the readings, seven plots
+    # shared one column and the tip's random response and the damping per point had no y-axis numbers at all.
     left = rrb.Vertical(*series, row_shares=[TIP_ROW_SHARE] + [1] * (len(series) - 1))
-    return rrb.Blueprint(rrb.Horizontal(left, rrb.Vertical(*right), column_shares=[3, 2]), collapse_panels=True)
+    if monitor:
+        columns = rrb.Horizontal(left, rrb.Vertical(*monitor), rrb.Vertical(*right), column_shares=[3, 2, 2])
+    else:
+        columns = rrb.Horizontal(left, rrb.Vertical(*right), column_shares=[3, 2])
+    return rrb.Blueprint(columns, collapse_panels=True)
 
 
 class RerunLogger:
