@@ -120,11 +120,11 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live), with the analysis of
     ``result``: the plateaus' status and the onset (text log), and the flutter-test replay's identified points
     (flutter monitor views). The blueprint holds only views with data: control views when the bag has control
-    commands, the flutter views when the replay identified a point, the analysis log when there are plateaus."""
+    commands, the flutter views when the replay identified a point, the analysis log when there are plateaus, the
+    modal and panel-shape views when the bag has modal states and shapes."""
     from panel_rig.viz import RerunLogger
 
-    n_modes = max(1, rec.q.shape[1])
-    q = rec.q if rec.q.shape[1] else np.zeros((rec.t_s.size, 1))
+    n_modes = rec.q.shape[1]  # 0: the bag has no modal states (a flutter test's), no modal view
     result = result or {}
     control = rec.commands.get("control/force_cmd", [])
     replayed = _replay_times(rec, result, ft_points)
@@ -133,9 +133,10 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
         ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
         ("flutter_zw",) if any(p.first is not None and p.flutter is not None for p in ft_points) else ()) + (
         ("analysis",) if result.get("plateaus") else ())
-    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views)
+    logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views,
+                         shape=bool(rec.shapes))
     try:
-        logger.log_batch(rec.t_s, rec.tip_w_over_L, q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
+        logger.log_batch(rec.t_s, rec.tip_w_over_L, rec.q, np.nan_to_num(rec.airspeed_mps), rec.force_npm)
         for name, events in rec.commands.items():
             for t, value in events:
                 logger.on_command(name, value, True, t)

@@ -167,6 +167,25 @@ def test_in_process_flutter_test_records_the_panel_shape(tmp_path: Path) -> None
     assert strip[-1, 0] == pytest.approx(cfg.airfoil_length_m + cfg.panel_length_m)
 
 
+def test_a_flutter_test_s_bag_replays_without_modal_or_shape_views_it_has_no_data_for(tmp_path: Path) -> None:
+    """A flutter test records what a tunnel measures (tip, airspeed, commands, the monitor), no modal states and no
+    panel shapes. Its `analyze --rerun` drew a modal coordinate "q1" at exactly zero (made up by the replay) and
+    an empty panel-shape view; both views are now left out, and no modal entity is logged."""
+    from panel_rig.analyze_cli import analyze_bag
+    from panel_rig.config import load_config
+    from panel_rig.flutter_cli import run_in_process
+
+    run_in_process(load_config(), bag_dir=tmp_path / "bags", dwell_s=20.0, settle_s=1.0, max_points=1)
+    (bag,) = (tmp_path / "bags").iterdir()
+    analyze_bag(bag, rerun_path=tmp_path / "replay.rrd")
+    rows = _temporal(tmp_path / "replay.rrd")
+    views = _views(tmp_path / "replay.rrd")
+    assert rows["/tip/w_over_L"] and rows["/airspeed/mps"]
+    assert not any(entity.startswith("/modal") for entity in rows), sorted(rows)
+    assert not any(name.startswith(("Modal", "Panel shape")) for name in views), sorted(views)
+    assert "Tip deflection w/L" in views
+
+
 def test_monitor_logs_the_zw_flutter_margin_of_each_point_with_both_modes(tmp_path: Path) -> None:
     """The PNG's ZW panel (flutter margin F per point) had no Rerun counterpart: a point with both modes
     identified logs its F in Hz^4 under flutter/zw_margin_hz4 in a view of its own; a point without the first

@@ -82,8 +82,10 @@ def modal_entity(i: int) -> str:
     return f"modal/q{i}"
 
 
-def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_run: bool = False) -> Any:
-    """Default layout: tip, modal, airspeed+shaker time series, the panel shape in 3-D, and of
+def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_run: bool = False,
+              shape: bool = True) -> Any:
+    """Default layout: tip, modal (none when ``n_modes`` is 0), airspeed+shaker time series, the panel shape in 3-D
+    (unless ``shape`` is false: a recording without shapes), and of
     `OPTIONAL_VIEWS` those in ``views``: control command and age, the flutter monitor (margin, damping vs time
     and damping vs airspeed), its predicted U_f (there only once a prediction is made), its ZW flutter margin per
     point (points with both modes identified), the analysis text log.
@@ -101,7 +103,8 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
     readings_axis = whole if whole_run else None
     series = [
         rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L", axis_x=readings_axis),
-        rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}", axis_x=readings_axis),
+        *([rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}", axis_x=readings_axis)]
+          if n_modes else []),
         rrb.TimeSeriesView(
             origin="/", contents=["airspeed/**", "shaker/**", *COMMAND_MARKERS],
             name="Airspeed (m/s) & shaker (N/m)", axis_x=readings_axis,
@@ -134,8 +137,9 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
         kind=rrb.Eye3DKind.Orbital, position=[0.35, -2.5, 0.3], look_target=[0.35, 0.0, 0.0],
         eye_up=[0.0, 0.0, 1.0],
     )
-    shape = rrb.Spatial3DView(origin="panel", name="Panel shape (x chord, z deflection)", eye_controls=eye)
-    right: list[Any] = [shape]
+    right: list[Any] = []
+    if shape:
+        right.append(rrb.Spatial3DView(origin="panel", name="Panel shape (x chord, z deflection)", eye_controls=eye))
     if "flutter" in views:
         right.append(rrb.Spatial2DView(origin=FLUTTER_VG,
                                        name="Flutter mode: damping ratio x 1000 (up) vs airspeed (m/s)"))
@@ -146,11 +150,12 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
     # For the same reason the flutter monitor's plots get a column of their own: below the readings, seven plots
     # shared one column and the tip's random response and the damping per point had no y-axis numbers at all.
     left = rrb.Vertical(*series, row_shares=[TIP_ROW_SHARE] + [1] * (len(series) - 1))
+    columns, shares = [left], [3]
     if monitor:
-        columns = rrb.Horizontal(left, rrb.Vertical(*monitor), rrb.Vertical(*right), column_shares=[3, 2, 2])
-    else:
-        columns = rrb.Horizontal(left, rrb.Vertical(*right), column_shares=[3, 2])
-    return rrb.Blueprint(columns, collapse_panels=True)
+        columns, shares = [*columns, rrb.Vertical(*monitor)], [*shares, 2]
+    if right:
+        columns, shares = [*columns, rrb.Vertical(*right)], [*shares, 2]
+    return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), collapse_panels=True)
 
 
 class RerunLogger:
@@ -167,14 +172,16 @@ class RerunLogger:
         batch_period_s: float = 0.1,
         views: Collection[str] = OPTIONAL_VIEWS,
         control_views_on_data: bool = False,
+        shape: bool = True,
     ) -> None:
-        """``views``: the optional views of the layout (:func:`blueprint`). ``control_views_on_data``: the control
-        views join the layout when the first control command is logged (a node, where a controller may or may not
-        connect: two empty plots otherwise)."""
+        """``n_modes``: the modal coordinates logged (0: none, no modal view). ``views``: the optional views of the
+        layout (:func:`blueprint`). ``control_views_on_data``: the control views join the layout when the first
+        control command is logged (a node, where a controller may or may not connect: two empty plots otherwise).
+        ``shape``: the layout has the panel-shape view (false for a recording without shapes)."""
         if mode not in MODES:
             raise VizError(f"rerun mode must be one of {MODES}, got {mode!r}")
-        if not isinstance(n_modes, int) or n_modes < 1:
-            raise VizError(f"n_modes must be a positive int, got {n_modes!r}")
+        if not isinstance(n_modes, int) or isinstance(n_modes, bool) or n_modes < 0:
+            raise VizError(f"n_modes must be an int >= 0, got {n_modes!r}")
         self.n_modes = n_modes
         self.mode = mode
         self.target = target
@@ -185,6 +192,7 @@ class RerunLogger:
         self._pending_since = time.monotonic()
         self._rec: Any = None
         self._views = tuple(views)
+        self._shape = shape
         self._control_views_on_data = control_views_on_data and "control" not in self._views
         if mode == "off":
             return
@@ -207,7 +215,7 @@ class RerunLogger:
         self._log_styles()
 
     def _blueprint(self) -> Any:
-        return blueprint(self.n_modes, self._views, whole_run=self.mode == "save")
+        return blueprint(self.n_modes, self._views, whole_run=self.mode == "save", shape=self._shape)
 
     def _add_control_views(self) -> None:
         """The first control command: the layout gains the control views (sent as the active blueprint)."""
