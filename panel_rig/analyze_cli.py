@@ -89,8 +89,12 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     monitored = rec.parameters.get("flutter_monitor") is True
     window = {k: float(rec.parameters[f"flutter_test.{k}"]) for k in ("settle_s", "dwell_s")
               if monitored and isinstance(rec.parameters.get(f"flutter_test.{k}"), (int, float))}
+    # (a flutter test's, whose node holds after each point: only the windows it completed; a test stopped during a
+    # dwell took no point there, though the node identifies a cut plateau of the minimum dwell)
+    flutter_test = monitored and rec.parameters.get("flutter_test.hold") is True
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
-                           rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps, **window)
+                           rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps,
+                           complete_only=flutter_test and "dwell_s" in window, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,

@@ -172,7 +172,7 @@ def _flutter_options_apply(args: argparse.Namespace) -> None:
                                                                         args.actuator_bandwidth_hz))
                    if given is not None]
         if ignored:
-            raise UsageError(f"{', '.join(ignored)} only apply with --control")
+            raise UsageError(f"{', '.join(ignored)} {'applies' if len(ignored) == 1 else 'apply'} only with --control")
         if args.aero != "rom" and args.rom_modes is not None and not (args.vg or args.plot):
             raise UsageError("--rom-modes sets the ROM: give it with --aero rom, --vg, --plot or --control")
     args.aero = args.aero or "full"
@@ -522,6 +522,11 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         raise UsageError(f"--dwell must be in [{MIN_DWELL_S:g}, {MAX_DWELL_S:g}] s (simulated), got {args.dwell}")
     if args.start_mps is not None and not args.start_mps > 0.0:
         raise UsageError("--start-mps must be > 0")
+    if args.start_mps is not None:
+        try:
+            _airspeed(args.start_mps)
+        except UsageError as exc:
+            raise UsageError(f"--start-mps: {exc}") from None
     if args.max_points is not None and args.max_points < 1:
         raise UsageError("--max-points must be >= 1")
     if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
@@ -547,9 +552,10 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         return 1
     except Interrupted as stopped:  # Ctrl-C, SIGTERM: the points identified so far, reported as a finished test's
         print(stopped.message, file=sys.stderr, flush=True)
-        partial = stopped.payload
+        partial = {**stopped.payload, "rerun": args.rerun}
         _emit(args, partial, lambda: format_flutter_test(partial))
         return stopped.exit_status
+    out["rerun"] = args.rerun  # the Rerun file written (None without --rerun)
     _emit(args, out, lambda: format_flutter_test(out))
     return 1 if out["fluttered"] else 0
 

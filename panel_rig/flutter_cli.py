@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from panel_rig.processes import Interrupted, interruption, sigterm_exits
+from panel_rig.processes import Interrupted, interruption, signals_deferred, sigterm_exits
 
 NAMESPACE = "/rig"
 
@@ -152,7 +152,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import FlutterTestResult, bands_from_model, interrupted_result, run_procedure
-    from panel_rig.rig.flutter_run import pretest_plan, rig_measure, start_warning
+    from panel_rig.rig.flutter_run import pretest_plan, rig_measure, start_problem, start_warning, take_late_point
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
     from panel_rig.ros import messages
@@ -160,11 +160,14 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
     t0 = time.monotonic()
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
+                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
+    problem = start_problem(settings, limits.max_airspeed_mps)
+    if problem is not None:  # before the bag is made: nothing half-recorded is left behind
+        raise ValueError(problem)
     warning = start_warning(start_mps, uf, margin)
     if warning is not None and progress is not None:
         progress(warning)
-    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
-                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
     sinks: list[Any] = []
     writer = None
     if bag_dir is not None:
@@ -175,7 +178,11 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
         # the run's configuration under its parameter keys, so a replay rebuilds the same model
         flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
-        writer.write_parameters({**flat, **(params or {}), "model.variant": variant, "flutter_test.margin": margin})
+        # and the monitor's window and hold as a flutter test's node records them (flutter_monitor, flutter_test.*):
+        # the replay takes the same windows, so it reproduces this test's identification
+        writer.write_parameters({**flat, **(params or {}), "model.variant": variant, "flutter_monitor": True,
+                                 "flutter_test.margin": margin, "flutter_test.settle_s": settings.settle_s,
+                                 "flutter_test.dwell_s": settings.dwell_s, "flutter_test.hold": True})
         sinks.append(BagSink(writer, len(np.atleast_1d(st.q)), cfg))
     viz = None
     if rerun:
@@ -191,32 +198,43 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     history: list[tuple[float, Any, Any]] = []
 
     def on_point(point: Any, decision: Any) -> None:
-        history.append((rig.time_s, point, decision))
-        if progress is not None:
-            progress(point_line(len(history), point, decision))
-        if writer is not None:
-            writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
-                         messages.stamp_ns(rig.time_s), qos="reliable")
-        if viz is not None:
-            viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
+        with signals_deferred():  # a stop waits until the point is recorded whole
+            history.append((rig.time_s, point, decision))
+            if progress is not None:
+                progress(point_line(len(history), point, decision))
+            if writer is not None:
+                writer.write(f"{NAMESPACE}/{TOPIC}",
+                             monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
+                             messages.stamp_ns(rig.time_s), qos="reliable")
+            if viz is not None:
+                viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
 
     res, stopped = FlutterTestResult(), None
+    measure, bands = rig_measure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
     try:
-        with sigterm_exits():  # SIGTERM leaves through the clean-up below as Ctrl-C does
-            run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point, res)
+        # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
+        # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
+        with sigterm_exits():
+            run_procedure(measure, bands, settings, on_point, res)
     except (KeyboardInterrupt, SystemExit) as exc:
         stopped = interruption(exc)
         if stopped is None:
             raise
+        # a dwell recorded whole is a point of the test, though the stop cut its analysis or its recording
+        with signals_deferred():
+            if take_late_point(res, measure.last, bands, settings) or len(history) < len(res.points):
+                interrupted_result(res, settings, stopped.name)
+                on_point(res.points[-1], res.decisions[-1])
     finally:
-        rig.command_airspeed(0.0)
-        for s in sinks:
-            if hasattr(s, "flush_blocks"):
-                s.flush_blocks()
-        if writer is not None:
-            writer.close()
-        if viz is not None:
-            viz.close()
+        with signals_deferred():  # a second Ctrl-C waits until the recording is closed
+            rig.command_airspeed(0.0)
+            for s in sinks:
+                if hasattr(s, "flush_blocks"):
+                    s.flush_blocks()
+            if writer is not None:
+                writer.close()
+            if viz is not None:
+                viz.close()
     if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
         interrupted_result(res, settings, stopped.name)
     res.bag = str(writer.bag_dir) if writer is not None else None
@@ -253,6 +271,7 @@ def format_flutter_test(out: dict[str, Any]) -> str:
                  f"stop: {out['stop_reason']}")
     where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {num(out['node_rtf'], '.1f')})"
              if out.get("live") else "in-process rig")
-    lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {out['simulated_s']:.0f} s simulated in "
-                 f"{out['wall_s']:.1f} s wall on the {where}")
+    rerun = f"rerun: {out['rerun']}; " if out.get("rerun") else ""
+    lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {rerun}{out['simulated_s']:.0f} s "
+                 f"simulated in {out['wall_s']:.1f} s wall on the {where}")
     return "\n".join(lines)

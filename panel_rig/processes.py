@@ -69,6 +69,31 @@ def sigterm_exits() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Within the block SIGINT and SIGTERM wait; on leaving it the first one that came is raised again, through the
+    handler that stood before (Ctrl-C's KeyboardInterrupt, :func:`sigterm_exits`' SystemExit, ...). For work that
+    must not be cut in the middle: a block of readings handed to the recording (a Ctrl-C inside the bag writer left
+    a summary counting a message its data section did not hold). Outside the main thread, where no handler can be
+    set, the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+
+    def hold(signum: int, frame: object) -> None:
+        pending.append(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if pending:
+            signal.raise_signal(pending[0])
+
+
 def interruption(exc: BaseException) -> signal.Signals | None:
     """The signal an exception stands for: SIGINT for KeyboardInterrupt (Ctrl-C), SIGTERM for the SystemExit of
     :func:`sigterm_exits`; None for any other."""

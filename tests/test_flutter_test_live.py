@@ -120,13 +120,21 @@ def test_live_flutter_test_reports_a_dead_node_in_one_line(tmp_path, capsys, mon
     assert code == 1 and "node log:" in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys):
-    """A first point above the tunnel's limit is refused by the node: the command says so in one line (exit 1)
-    instead of waiting for a test point that will never come."""
+def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys, monkeypatch):
+    """A first point above the tunnel's limit: refused before the node starts (exit 2, one line, nothing
+    recorded); and should the node still refuse a set-point (the check before the start left out here), the
+    command says so in one line (exit 1) instead of waiting for a test point that will never come."""
     pytest.importorskip("rclpy")
     from panel_rig.cli import main
+    from panel_rig.ros import flutter_live
 
-    code = main(["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")])
+    args = ["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")]
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1 and "above the rig's airspeed limit" in err, err
+    assert not any(tmp_path.iterdir())
+    monkeypatch.setattr(flutter_live, "start_problem", lambda settings, limit: None)
+    code = main(args)
     err = capsys.readouterr().err
     lines = [ln for ln in err.strip().splitlines() if not ln.startswith("warning: --start-mps")]  # the margin's
     assert code == 1 and "rejected" in err and "exceeds the limit" in err and len(lines) == 1, err

@@ -385,18 +385,24 @@ def _tunnel_at(t: np.ndarray, airspeed_mps: np.ndarray | None, t0_s: float, t1_s
     return not u.size or abs(float(np.median(u)) - u_mps) <= AIRSPEED_MATCH_MPS + AIRSPEED_MATCH_REL * u_mps
 
 
+#: a monitored recording's window at least this fraction of the dwell long is a completed test point
+COMPLETE_DWELL_FRACTION = 0.99
+
+
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
-                  airspeed_mps: np.ndarray | None = None) -> list[TestPoint]:
+                  airspeed_mps: np.ndarray | None = None, complete_only: bool = False) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
     ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
     (:func:`_fluttered`). Given the measured ``airspeed_mps`` (m/s, on ``t_s``), a window whose median is not
     within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
-    refused, an aborted rig)."""
+    refused, an aborted rig). ``complete_only`` (a recording of the monitor, whose points each took a whole
+    ``dwell_s``): a window shorter than COMPLETE_DWELL_FRACTION x ``dwell_s`` (a test stopped during its dwell) is no
+    test point either, unless it fluttered."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
@@ -410,6 +416,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
             break
         if _fluttered(t, y, tc, tc + settle_s, t_end, force_npm, panel_length_m):
             break
+        if complete_only and t_end - tc - settle_s < COMPLETE_DWELL_FRACTION * dwell_s:
+            continue
         yy, dt = resample_window(t, y, tc + settle_s, t_end)
         if yy.size < 16:
             continue

@@ -4,7 +4,9 @@ turbulence, sensor and safety as the node's rig. Used by the unit tests and as t
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from contextlib import nullcontext
+from dataclasses import dataclass
+from typing import Any, Callable, ContextManager
 
 import numpy as np
 
@@ -34,24 +36,92 @@ def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
     return bool(aborted or (tip_m.size and np.max(np.abs(tip_m)) > FLUTTER_TIP_FRACTION * panel_length_m))
 
 
-def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4
-                ) -> Callable[[float], tuple[np.ndarray, float, None, bool]]:
-    """``measure(U)`` for :func:`run_procedure`: command U, march the run-in, then the dwell, sampled every
-    ``steps_per_sample`` physics steps (block march). Returns the measured tip of the dwell."""
-    dt = rig.dt_s * steps_per_sample
+#: simulated seconds of readings marched and handed to the sinks at a time: a stop between two such blocks leaves
+#: the recording with every reading the rig marched (the rig's time is the last reading's)
+EMIT_BLOCK_S = 1.0
 
-    def measure(u: float) -> tuple[np.ndarray, float, None, bool]:
-        result = rig.command_airspeed(u)
+
+@dataclass(frozen=True)
+class Dwell:
+    """A completed dwell: its airspeed (m/s), the monitor's window of the measured tip (m), the sample interval (s),
+    and whether the plateau fluttered."""
+
+    airspeed_mps: float
+    window_m: np.ndarray
+    dt_s: float
+    fluttered: bool
+
+
+class RigMeasure:
+    """``measure(U)`` for :func:`run_procedure` on an in-process Rig: command U, march the run-in, then the dwell,
+    sampled every ``steps_per_sample`` physics steps (block march). Returns the monitor's window of the measured tip.
+
+    The run-in and the dwell are marched and handed to the rig's sinks in blocks of ``EMIT_BLOCK_S``, each inside
+    ``atomic()`` (e.g. :func:`panel_rig.processes.signals_deferred`: a stop waits for the block's end). ``last``
+    is the newest completed dwell, set with its last block: a test stopped after it but before its point was taken
+    can still take it (as the live client takes the node's late result)."""
+
+    def __init__(self, rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4,
+                 atomic: Callable[[], ContextManager[Any]] = nullcontext) -> None:
+        self.rig, self.settings, self.steps_per_sample, self.atomic = rig, settings, steps_per_sample, atomic
+        self.dt_s = rig.dt_s * steps_per_sample
+        self.per_block = max(1, int(round(EMIT_BLOCK_S / self.dt_s)))
+        self.last: Dwell | None = None
+        self._newest = np.zeros(0)  # the newest sample marched so far (none before the first point)
+
+    def _march(self, n_samples: int, done: Callable[[np.ndarray], None] | None = None) -> np.ndarray:
+        """March n samples in blocks, each handed to the sinks (bag, viewer) as the node publishes its blocks;
+        ``done(all samples)`` runs inside the last block's ``atomic()``."""
+        tips = [np.zeros(0)]
+        if n_samples <= 0 and done is not None:
+            with self.atomic():
+                done(tips[0])
+        for start in range(0, n_samples, self.per_block):
+            with self.atomic():
+                blk = self.rig.advance_samples([self.steps_per_sample] * min(self.per_block, n_samples - start))
+                self.rig.emit_block(blk)
+                tips.append(np.asarray(blk.tip_w_m, dtype=float))
+                if done is not None and start + self.per_block >= n_samples:
+                    done(np.concatenate(tips))
+        return np.concatenate(tips)
+
+    def __call__(self, u: float) -> tuple[np.ndarray, float, None, bool]:
+        result = self.rig.command_airspeed(u)
         if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
             raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
-        settle = rig.advance_samples([steps_per_sample] * int(round(settings.settle_s / dt)))
-        rig.emit_block(settle)  # to the rig's sinks (bag, viewer), as the node publishes its blocks
-        blk = rig.advance_samples([steps_per_sample] * int(round(settings.dwell_s / dt)))
-        rig.emit_block(blk)
-        tip = np.concatenate([settle.tip_w_m, blk.tip_w_m])
-        return blk.tip_w_m, dt, None, fluttered(tip, rig.panel_length_m, rig.state != RUNNING)
+        settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
+        before = np.concatenate([self._newest, settle])
 
-    return measure
+        def dwell_done(dwell: np.ndarray) -> None:
+            # the monitor's window [command + settle, command + settle + dwell), as the node's monitor and the
+            # bag's replay cut it (resample_window): from the sample at its start, the dwell's last sample left out
+            self._newest = np.concatenate([before, dwell])[-1:]
+            self.last = Dwell(u, np.concatenate([before[-1:], dwell[:-1]]), self.dt_s,
+                              fluttered(np.concatenate([settle, dwell]), self.rig.panel_length_m,
+                                        self.rig.state != RUNNING))
+
+        self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
+        last = self.last
+        return last.window_m, last.dt_s, None, last.fluttered
+
+
+def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4,
+                atomic: Callable[[], ContextManager[Any]] = nullcontext) -> RigMeasure:
+    """``measure(U)`` for :func:`run_procedure` (:class:`RigMeasure`)."""
+    return RigMeasure(rig, settings, steps_per_sample, atomic)
+
+
+def take_late_point(res: FlutterTestResult, dwell: Dwell | None, bands: Callable[[float], list[tuple[float, float]]],
+                    settings: FlutterTestSettings) -> bool:
+    """The point of a dwell that completed before the test was stopped but was not taken yet (the stop came during
+    its identification): identified and added to ``res``, as the live client adds the node's late result. True
+    if a point was added."""
+    if dwell is None or dwell.fluttered or dwell.airspeed_mps != res.max_airspeed_mps or (
+            res.points and res.points[-1].airspeed_mps == dwell.airspeed_mps):
+        return False
+    u = dwell.airspeed_mps
+    res.points.append(identify_point(dwell.window_m, dwell.dt_s, u, bands(u), None, settings.ssi))
+    return True
 
 
 def default_plan(uf_model_mps: float, margin: float = 0.1, start_mps: float | None = None,
@@ -77,6 +147,15 @@ def pretest_plan(cfg: PanelConfig, variant: str = "full", margin: float = 0.1, s
     changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
                if v is not None}
     return st, uf, mode, default_plan(uf, margin, start_mps, **changes)
+
+
+def start_problem(settings: FlutterTestSettings, max_airspeed_mps: float) -> str | None:
+    """Why the plan cannot start on a rig whose airspeed limit is ``max_airspeed_mps``: a first point above it
+    (checked before anything is recorded; the rig would refuse the command). None when it can."""
+    if settings.start_mps > max_airspeed_mps:
+        return (f"--start-mps {settings.start_mps:g} m/s is above the rig's airspeed limit "
+                f"{max_airspeed_mps:g} m/s for this test")
+    return None
 
 
 def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str | None:

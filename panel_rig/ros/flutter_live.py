@@ -27,6 +27,7 @@ from panel_rig.processes import (
     spawn,
     stop,
 )
+from panel_rig.rig.flutter_run import pretest_plan, start_problem, start_warning
 
 if TYPE_CHECKING:
     from panel_rig.analysis.flutter_test import FlutterTestResult
@@ -46,6 +47,14 @@ class Drive:
     test_s: float = math.nan
 
 
+def node_max_airspeed_mps(uf_mps: float) -> float:
+    """The test node's ``safety.max_airspeed_mps``: the node's default, raised to 1.2 U_f (the tunnel's limit must
+    not stop the approach of a stiffer panel's boundary)."""
+    from panel_rig.ros.params import NODE_PARAMS
+
+    return float(max(NODE_PARAMS["safety.max_airspeed_mps"].default, 1.2 * uf_mps))
+
+
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
                     bag_dir: Path | None, rerun: str | None) -> dict[str, Any]:
     """Every parameter the node needs for the test: the run's physics (so the node's model is the one the test
@@ -55,7 +64,6 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
 
     flat = {k: getattr(cfg, spec.field) for k, spec in SCHEMA.items()}
     flat = {k: (list(v) if isinstance(v, tuple) else v) for k, v in flat.items()}
-    default_max = NODE_PARAMS["safety.max_airspeed_mps"].default
     # readings every whole number of physics steps nearest the default 500 Hz (4 steps of 1/2048 s: 512 Hz), so
     # the monitor identifies on a regular record as the in-process driver does; at 500 Hz the intervals alternate
     # between 4 and 5 steps and each window must be interpolated onto a grid
@@ -64,8 +72,7 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
             "publish_rate_hz": 1.0 / (steps * cfg.dt_s),
             "flutter_test.settle_s": float(settle_s), "flutter_test.dwell_s": float(dwell_s),
             "flutter_test.margin": float(margin), "flutter_test.hold": True,
-            # the tunnel's limit must not stop the approach of a stiffer panel's boundary
-            "safety.max_airspeed_mps": float(max(default_max, 1.2 * uf_mps)),
+            "safety.max_airspeed_mps": node_max_airspeed_mps(uf_mps),
             "record": bag_dir is not None, "bag_dir": str(bag_dir) if bag_dir is not None else "bags",
             "rerun": f"save:{rerun}" if rerun else "none"}
 
@@ -79,15 +86,17 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison). ``progress``:
     called with a line after each test point (:func:`panel_rig.flutter_cli.point_line`)."""
     t0 = time.monotonic()
+    # the pre-test analysis (this process) gives the plan: U_f, the start and the step; a start the node would refuse
+    # ends here, before a run directory is made
+    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    problem = start_problem(settings, node_max_airspeed_mps(uf))
+    if problem is not None:
+        raise ValueError(problem)
     did = private_domain_id() if domain_id is None else int(domain_id)
     base = Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir())
     base.mkdir(parents=True, exist_ok=True)
     run_dir = Path(tempfile.mkdtemp(prefix=time.strftime("flutter_test_%Y%m%d_%H%M%S_"), dir=base))
 
-    # the pre-test analysis (this process) gives the plan: U_f, the start and the step
-    from panel_rig.rig.flutter_run import pretest_plan, start_warning
-
-    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
     warning = start_warning(start_mps, uf, margin)
     if warning is not None and progress is not None:
         progress(warning)
