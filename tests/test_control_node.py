@@ -262,6 +262,14 @@ def test_controller_follows_a_restarted_rig_and_takes_live_parameters(ros_env: d
             assert not result.successful and name in result.reason, (name, result.reason)
         assert node.set_parameters([Parameter("gain_nspm2", value=0.8)])[0].successful
         assert node.law.gain_nspm2 == 0.8
+        # an integer for a float parameter is that float, live and at start (as the rig node takes it; rclpy
+        # refused `-p gain_nspm2:=1` with "expecting type 'DOUBLE'")
+        assert node.set_parameters([Parameter("gain_nspm2", value=2)])[0].successful
+        assert node.law.gain_nspm2 == 2.0 and node.get_parameter("gain_nspm2").value == 2.0
+        other = Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=1),
+                                                             Parameter("max_force_npm", value=3)])
+        assert (other.law.gain_nspm2, other.max_force) == (1.0, 3.0)
+        other.destroy_node()
         for name, value in (("max_force_npm", -1.0), ("derivative_hz", 0.0), ("design_delay_ms", -3.0)):
             with pytest.raises(ValueError, match=name):
                 Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=0.4),

@@ -36,6 +36,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
 from panel_rig.rig.control import ControlSettings
+from panel_rig.ros.params import as_declared
 from panel_rig.ros.session import ros_arguments_problem, ros_session
 
 NODE_NAME = "panel_rig_controller"
@@ -75,12 +76,19 @@ class Controller(Node):
     def __init__(self, physics_files: Sequence[str] = (), **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         defaults = ControlSettings()
-        self.declare_parameter("gain_nspm2", 0.0)
-        self.declare_parameter("derivative_hz", 150.0)
-        self.declare_parameter("design_delay_ms", DESIGN_DELAY_S * 1e3)
-        self.declare_parameter("actuator_bandwidth_hz", defaults.bandwidth_hz)
-        self.declare_parameter("max_force_npm", defaults.max_force_npm)
-        self.declare_parameter("enabled", True)
+        self._defaults = {"gain_nspm2": (0.0, None), "derivative_hz": (150.0, None),
+                          "design_delay_ms": (DESIGN_DELAY_S * 1e3, None),
+                          "actuator_bandwidth_hz": (float(defaults.bandwidth_hz), None),
+                          "max_force_npm": (float(defaults.max_force_npm), None), "enabled": (True, None)}
+        # an integer given for a float parameter (-p gain_nspm2:=1, ros2 param set ... 1) is that float, as the
+        # rig node takes it; rclpy refused it at start ("expecting type 'DOUBLE'")
+        overrides = getattr(self, "_parameter_overrides", {})
+        for name in self._defaults:
+            if name in overrides:
+                overrides[name] = as_declared(self._defaults, overrides[name])
+        for name, (default, _) in self._defaults.items():
+            self.declare_parameter(name, default)
+        self.add_pre_set_parameters_callback(lambda params: [as_declared(self._defaults, p) for p in params])
         for name in (*LIVE, "design_delay_ms", "actuator_bandwidth_hz"):
             problem = parameter_problem(name, self.get_parameter(name).value, at_start=True)
             if problem:
@@ -210,6 +218,9 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "rig_controller") -> 
             while not stop.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=0.05)
             node.get_logger().info(f"stopping: {node.sent} commands sent, {node.clipped} clipped")
+        except ValueError as exc:  # a bad parameter: its own message says which and why
+            print(f"{prog}: {exc}", file=sys.stderr)
+            code = 2
         except Exception as exc:  # noqa: BLE001 (one line and exit 2, never a traceback wall)
             print(f"{prog}: {type(exc).__name__}: {exc}", file=sys.stderr)
             code = 2
