@@ -317,9 +317,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--delay-ms", type=float, default=2.0,
                     help="command age the rig emulates (lock-step), ms; e.g. the p99 of benchmarks/control_latency.py; its "
                          "prediction is panel-rig flutter --control --command-age-ms (default: %(default)s)")
-    ap.add_argument("--out", default="out/control_demo")
-    ap.add_argument("--bag-dir", default="bags")
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--out", default="out/control_demo",
+                    help="directory for the Rerun file and summary.json (default: %(default)s)")
+    ap.add_argument("--bag-dir", default="bags", help="directory for the node's bag (default: %(default)s)")
+    ap.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
         print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
@@ -333,7 +334,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         with sigterm_exits():  # a kill leaves through run's clean-up: the node does not go on recording
-            s = run(args.delay_ms, Path(args.out), Path(args.bag_dir),
+            # absolute paths in the summary (bag, .rrd, logs), whichever directory it is read from
+            s = run(args.delay_ms, Path(args.out).resolve(), Path(args.bag_dir).resolve(),
                     log=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     except DemoError as exc:
         print(f"panel-rig control-demo: {exc}", file=sys.stderr)

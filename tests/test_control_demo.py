@@ -44,8 +44,10 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     psutil = pytest.importorskip("psutil")
     pytest.importorskip("rclpy")
     out, bags = tmp_path / "out", tmp_path / "bags"
-    proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "control-demo", "--json", "--out", str(out),
-                             "--bag-dir", str(bags)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    # relative directories, from another working directory: the summary's paths come out absolute (the bag's
+    # was relative while the .rrd's and the logs' were absolute)
+    proc = subprocess.Popen([sys.executable, "-m", "panel_rig.cli", "control-demo", "--json", "--out", "out",
+                             "--bag-dir", "bags"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     err = stderr_lines(proc)
     try:
@@ -68,6 +70,8 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     assert summary["quiet_tip_rms_m"] > 0 and isinstance(summary["quiet"], bool)
     assert summary["node_exit"] == 0 and summary["controller_exit"] == 0
     assert Path(summary["bag"], "metadata.yaml").exists() and Path(summary["node_log"]).exists()
+    assert all(Path(summary[k]).is_absolute() for k in ("bag", "node_log", "controller_log")), summary
+    assert Path(summary["bag"]).parent == bags
     assert isinstance(summary["control_commands"], int) and summary["control_commands"] > 0
     assert isinstance(summary["latency_mean_total_ms"], float)
     assert f"stopped by {signal.Signals(sig).name}" in text and str(out / "summary.json") in text
