@@ -148,6 +148,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
             text += "\n U (m/s)" + "".join(f"   f{i + 1} (Hz)  zeta{i + 1}  " for i in range(n)) + "\n" + "\n".join(
                 f"{u:8.2f}" + "".join(f"  {f:9.3f} {z:8.5f}" for f, z in zip(fr, zr))
                 for u, fr, zr in zip(vg.airspeed_mps, vg.frequency_hz, vg.damping_ratio))
+        if payload.get("plot"):
+            text += f"\nplot               {payload['plot']}"
         return text
 
     _emit(args, payload, table)
@@ -251,7 +253,8 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
                                                    f"{cl.frequency_hz:.2f} Hz)") + "\n"
                 f"law                        F = -{design.law.gain_nspm2:g} s/(1 + s/(2 pi "
                 f"{design.law.derivative_hz:g})) w   [N/m per m/s]\n"
-                f"loop                       actuator {bw:g} Hz, delay {delay_s * 1e3:.3f} ms ({source})")
+                f"loop                       actuator {bw:g} Hz, delay {delay_s * 1e3:.3f} ms ({source})"
+                + (f"\nplot                       {payload['plot']}" if payload.get("plot") else ""))
 
     _emit(args, payload, table)
     return 0

@@ -42,6 +42,7 @@ def test_flutter_plot(tmp_path):
     out = run("flutter", "--plot", str(png))
     assert out.returncode == 0, out.stderr
     assert png.stat().st_size > 10_000
+    assert out.stdout.splitlines()[-1].split() == ["plot", str(png)]  # the table names the file it wrote
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -274,6 +274,8 @@ def test_cli_flutter_control_json_and_bad_input(capsys, tmp_path) -> None:
     out = json.loads(capsys.readouterr().out)
     assert out["closed_loop_flutter_speed_mps"] > 1.25 * out["flutter_speed_mps"]
     assert out["loop_delay_s"] == pytest.approx(0.003) and (tmp_path / "d.png").stat().st_size > 10_000
+    assert main(["flutter", "--control", "--plot", str(tmp_path / "e.png")]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].split() == ["plot", str(tmp_path / "e.png")]  # named, as --json
     assert main(["flutter", "--control", "--delay-ms", "nan"]) == 2
     assert main(["flutter", "--control", "--delay-ms", "1", "--command-age-ms", "1"]) == 2
     assert "error" in capsys.readouterr().err
