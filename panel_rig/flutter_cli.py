@@ -152,7 +152,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import FlutterTestResult, bands_from_model, interrupted_result, run_procedure
-    from panel_rig.rig.flutter_run import pretest_plan, rig_measure, start_problem, start_warning, take_late_point
+    from panel_rig.rig.flutter_run import RigMeasure, pretest_plan, start_problem, start_warning, take_late_point
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
     from panel_rig.ros import messages
@@ -210,7 +210,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                 viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
 
     res, stopped = FlutterTestResult(), None
-    measure, bands = rig_measure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
+    measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
     try:
         # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
         # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)

@@ -105,12 +105,6 @@ class RigMeasure:
         return last.window_m, last.dt_s, None, last.fluttered
 
 
-def rig_measure(rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4,
-                atomic: Callable[[], ContextManager[Any]] = nullcontext) -> RigMeasure:
-    """``measure(U)`` for :func:`run_procedure` (:class:`RigMeasure`)."""
-    return RigMeasure(rig, settings, steps_per_sample, atomic)
-
-
 def take_late_point(res: FlutterTestResult, dwell: Dwell | None, bands: Callable[[float], list[tuple[float, float]]],
                     settings: FlutterTestSettings) -> bool:
     """The point of a dwell that completed before the test was stopped but was not taken yet (the stop came during
@@ -185,7 +179,7 @@ def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSet
     limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
                           wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
     rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
-    return run_procedure(rig_measure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
+    return run_procedure(RigMeasure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
 
 
 class FlutterMonitorSink:
