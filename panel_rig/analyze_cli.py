@@ -15,7 +15,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.config import ConfigError, PanelConfig
 from panel_rig.model.options import VARIANTS
-from panel_rig.paths import make_output_dir, rrd_path_problem
+from panel_rig.paths import make_output_dir, prepare_rrd_path
 
 ANALYZE_PROG = "panel-rig analyze"
 FLUTTER_TEST_PLOT = "flutter_test_vg.png"  # with --plots, when the replay identified a test point
@@ -267,16 +267,14 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     1 cannot write outputs."""
     from panel_rig.recording.errors import RecordingError
 
-    problem = rrd_path_problem(args.rerun) if args.rerun is not None else None
-    if problem:  # before the analysis: a --rerun that cannot be written threw the whole result away
-        print(f"{ANALYZE_PROG}: --rerun: {problem}", file=sys.stderr)
-        return 2
-    if args.plots is not None:
-        try:  # likewise a --plots directory that cannot be made
+    try:  # before the analysis: a --rerun or --plots that cannot be written threw the whole result away
+        if args.rerun is not None:
+            prepare_rrd_path(args.rerun, "--rerun")
+        if args.plots is not None:
             make_output_dir(args.plots, "--plots")
-        except ValueError as exc:
-            print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
-            return 2
+    except ValueError as exc:
+        print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
+        return 2
     try:
         result = analyze_bag(args.bag, args.plots, args.rerun)
     except RecordingError as exc:

@@ -18,7 +18,7 @@ from panel_rig import jsonio
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
-from panel_rig.paths import make_output_dir, rrd_path_problem
+from panel_rig.paths import make_output_dir, prepare_rrd_path
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Interrupted
 
 
@@ -540,10 +540,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     make_output_dir(Path(args.bag_dir), "--bag-dir")
     make_output_dir(Path(args.plot).parent, "--plot")
     if args.rerun:
-        make_output_dir(Path(args.rerun).parent, "--rerun")
-        problem = rrd_path_problem(args.rerun)
-        if problem:
-            raise UsageError(f"--rerun: {problem}")
+        prepare_rrd_path(args.rerun, "--rerun")
     try:
         out = run_flutter_test(cfg, args.variant, args.margin, args.start_mps, args.bag_dir, args.plot, args.rerun,
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},

@@ -20,14 +20,24 @@ def make_output_dir(path: str | Path, option: str) -> Path:
 
 def rrd_path_problem(path: str | Path) -> str | None:
     """Why a Rerun recording cannot be saved at ``path``, or None: it must name a .rrd file (rerun replaces
-    whatever is there: a typo once overwrote a profile YAML) in an existing directory."""
+    whatever is there: a typo once overwrote a profile YAML) under no ancestor that is a file. A missing directory
+    is no problem: `prepare_rrd_path` makes it, as the bag's and the plots' directories are made."""
     path = Path(path)
     if path.suffix.lower() != ".rrd":
         return f"a Rerun recording is saved to a .rrd file, not {str(path)!r}"
     if path.is_dir():
         return f"{path} is a directory: name the .rrd file in it"
-    if path.parent.exists() and not path.parent.is_dir():
-        return f"{path.parent} is a file, not a directory"
-    if not path.parent.is_dir():
-        return f"directory {path.parent} does not exist"
+    for ancestor in path.parents:
+        if ancestor.exists():
+            return None if ancestor.is_dir() else f"{ancestor} is a file, not a directory"
     return None
+
+
+def prepare_rrd_path(path: str | Path, option: str) -> Path:
+    """Check ``path`` for a Rerun recording and make its directory (parents too), before any work; ValueError
+    naming the option when it cannot be used."""
+    problem = rrd_path_problem(path)
+    if problem:
+        raise ValueError(f"{option}: {problem}")
+    make_output_dir(Path(path).parent, option)
+    return Path(path)

@@ -165,6 +165,15 @@ def test_cli_table_and_json(synthetic: Path, capsys: pytest.CaptureFixture[str])
     assert "flutter onset bracket: 10.00 .. 11.00 m/s" in out and out.count("decaying") == 3
 
 
+def test_cli_makes_the_rerun_file_s_directory_as_it_makes_the_plots(synthetic: Path, tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """`--rerun out/new/x.rrd` refused a missing directory while `--plots` and `flutter-test --rerun` made theirs."""
+    rrd = tmp_path / "new" / "deeper" / "replay.rrd"
+    assert main([str(synthetic), "--json", "--rerun", str(rrd), "--plots", str(tmp_path / "plots")]) == 0
+    assert json.loads(capsys.readouterr().out)["rerun"] == str(rrd)
+    assert rrd.stat().st_size > 0
+
+
 # ------------------------------------------------------------------------------ CLI errors
 def _one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     err = capsys.readouterr().err.strip().splitlines()

@@ -82,6 +82,7 @@ def test_flutter_plot(tmp_path):
     (["analyze", "bags/stiffness_staircase", "--json", "--rerun", "config"], ".rrd file"),
     (["analyze", "bags/stiffness_staircase", "--plots", "README.md/sub"], "--plots"),  # after the whole analysis
     (["analyze", "bags/stiffness_staircase", "--rerun", "README.md/x.rrd"], "README.md is a file"),
+    (["analyze", "bags/stiffness_staircase", "--rerun", "/proc/no_such_dir/x.rrd"], "--rerun: cannot create"),
     (["control-demo", "--out", "/proc/no_such_dir/demo"], "--out"),  # was a traceback after the design
     (["flutter", "--control", "--vg", "5:10:1"], "--vg"),  # options the analysis would silently ignore
     (["flutter", "--control", "--aero", "full"], "--aero full"),

@@ -141,9 +141,10 @@ def test_bad_configuration_is_a_clear_error(tmp_path: Path) -> None:
         RerunLogger(N_MODES, mode="live", target=None)
     with pytest.raises(VizError, match="target"):
         RerunLogger(N_MODES, mode="save", target=None)
-    with pytest.raises(VizError, match="does not exist"):
-        RerunLogger(N_MODES, mode="save", target=str(tmp_path / "no" / "x.rrd"))
-    logger = RerunLogger(N_MODES, mode="save", target=str(tmp_path / "ok.rrd"))
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(VizError, match="a_file is a file"):
+        RerunLogger(N_MODES, mode="save", target=str(tmp_path / "a_file" / "x.rrd"))
+    logger = RerunLogger(N_MODES, mode="save", target=str(tmp_path / "new" / "ok.rrd"))  # its directory is made
     try:
         with pytest.raises(VizError, match="samples"):
             logger.log_batch(np.arange(3.0), np.zeros(2), np.zeros((3, 3)), np.zeros(3), np.zeros(3))
@@ -151,6 +152,7 @@ def test_bad_configuration_is_a_clear_error(tmp_path: Path) -> None:
             logger.log_shape(0.0, np.arange(3.0), np.zeros(4))
     finally:
         logger.close()
+    assert (tmp_path / "new" / "ok.rrd").stat().st_size > 0
 
 
 def _blueprints(path: Path) -> list[list[tuple[str, dict[str, Any]]]]:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from panel_rig.paths import rrd_path_problem
+from panel_rig.paths import prepare_rrd_path
 
 if TYPE_CHECKING:
     from panel_rig.rig.reading import Reading, ReadingBlock
@@ -402,10 +402,10 @@ class RerunLogger:
     def _save_path(target: str | None) -> str:
         if not target:
             raise VizError('rerun mode "save" needs a target .rrd path')
-        problem = rrd_path_problem(target)
-        if problem:
-            raise VizError(f"cannot save Rerun recording: {problem}")
-        return str(target)
+        try:  # its directory is made, as the bag's is
+            return str(prepare_rrd_path(target, "cannot save Rerun recording"))
+        except ValueError as exc:
+            raise VizError(str(exc)) from None
 
     def _log_styles(self) -> None:
         """Static `SeriesLines` per series: name, colour, width and min/max zoom aggregation (`AGGREGATION`)."""
