@@ -214,3 +214,23 @@ def test_spectrogram_has_its_colour_scale(tmp_path, monkeypatch):
     assert any(label.startswith("PSD of tip w/L, dB") for label in labels), labels
     spec, speed = figures[0].axes[0], next(ax for ax in figures[0].axes if ax.get_ylabel().startswith("airspeed"))
     assert speed.get_position().bounds == pytest.approx(spec.get_position().bounds)  # the twin on the plot
+
+
+def test_spectrogram_colours_span_the_band_drawn(tmp_path, monkeypatch):
+    """The colour bar ran over the whole band to 0.5/dt (-150 .. -10 dB in the demo) while the plot shows 0..60 Hz:
+    a strong 90 Hz tone and the empty band above it set the colours. They now span the PSD drawn, from its 1st
+    percentile (a near-silent cell took a third of the scale) to its maximum."""
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path))[1])
+    t = np.arange(0.0, 20.0, 1 / 512)
+    tip = 1e-4 * np.sin(2 * np.pi * 22 * t) + 1e-1 * np.sin(2 * np.pi * 90 * t)
+    plots.plot_spectrogram(tmp_path / "sg.png", t, tip, np.full(t.size, 10.0), f_max_hz=60.0)
+    image = figures[0].axes[0].images[0]
+    drawn = image.get_array()  # dB, rows from 256 Hz (top) down to 0 Hz
+    freqs = np.linspace(256.0, 0.0, drawn.shape[0])
+    shown = np.asarray(drawn)[freqs <= 60.0]
+    assert image.get_clim() == pytest.approx((np.percentile(shown, plots.SPECTROGRAM_FLOOR_PERCENTILE),
+                                              shown.max()), abs=1e-6)
+    assert shown.min() < image.get_clim()[0]  # the few cells below the floor take the bottom colour
+    assert image.get_clim()[1] < np.asarray(drawn).max() - 20.0  # the 90 Hz tone is not the top colour

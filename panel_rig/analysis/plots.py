@@ -137,6 +137,21 @@ def plot_time_history(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarra
     return _save(fig, path)
 
 
+#: the spectrogram's colours start at this percentile of the PSD drawn (a few near-silent cells, e.g. a window
+#: whose turbulence happened to cancel, took a third of the scale); the colour bar's extension marks those below
+SPECTROGRAM_FLOOR_PERCENTILE = 1.0
+
+
+def shown_db_limits(psd: np.ndarray, freqs_hz: np.ndarray, f_top_hz: float,
+                    floor_percentile: float = SPECTROGRAM_FLOOR_PERCENTILE) -> tuple[float, float] | None:
+    """Colour limits of a spectrogram's PSD (rows: ``freqs_hz``) in dB, over the rows up to ``f_top_hz``: from the
+    ``floor_percentile`` of its finite values to their maximum; None if none is finite."""
+    with np.errstate(divide="ignore"):
+        db = 10.0 * np.log10(np.asarray(psd, float)[np.asarray(freqs_hz) <= f_top_hz])
+    db = db[np.isfinite(db)]
+    return (float(np.percentile(db, floor_percentile)), float(db.max())) if db.size else None
+
+
 def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray,
                      window_s: float = 2.0, f_max_hz: float = 60.0) -> Path:
     """Spectrogram of tip w/L (dB) with the measured airspeed on a second axis."""
@@ -145,13 +160,17 @@ def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray
     nfft = min(nfft, max(16, 2 ** int(np.log2(max(16, t_s.size // 4)))))
     fig, ax = plt.subplots(figsize=(9, 4.5))
     x = np.asarray(tip_w_over_L, float) - np.mean(tip_w_over_L)
+    f_top_hz = min(f_max_hz, 0.5 / dt)
     with np.errstate(divide="ignore"):  # silent stretches (rig at rest) are -inf dB
-        image = ax.specgram(x, NFFT=nfft, Fs=1.0 / dt, noverlap=nfft // 2, xextent=(t_s[0], t_s[-1]),
-                            cmap="viridis", scale="dB")[3]
-    ax.set(xlabel="time, s", ylabel="frequency, Hz", ylim=(0, min(f_max_hz, 0.5 / dt)),
+        psd, freqs_hz, _, image = ax.specgram(x, NFFT=nfft, Fs=1.0 / dt, noverlap=nfft // 2,
+                                              xextent=(t_s[0], t_s[-1]), cmap="viridis", scale="dB")
+    limits = shown_db_limits(psd, freqs_hz, f_top_hz)
+    if limits is not None:  # the colours span what is drawn, not the band above the plot's top (to 0.5/dt)
+        image.set_clim(*limits)
+    ax.set(xlabel="time, s", ylabel="frequency, Hz", ylim=(0, f_top_hz),
            title=f"Spectrogram of tip w/L ({nfft * dt:.2f} s windows)")
     # the colour scale, before the twin axis is made (it then takes the plot's narrowed place)
-    fig.colorbar(image, ax=ax, pad=0.11, label="PSD of tip w/L, dB re 1 (w/L)^2/Hz")
+    fig.colorbar(image, ax=ax, pad=0.11, extend="min", label="PSD of tip w/L, dB re 1 (w/L)^2/Hz")
     ax2 = ax.twinx()
     ax2.plot(t_s, airspeed_mps, color="w", lw=1.2)
     ax2.set_ylabel("airspeed, m/s (white)")
