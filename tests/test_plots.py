@@ -134,7 +134,7 @@ def test_flutter_test_cuts_a_huge_bar_and_marks_it(tmp_path, monkeypatch, panel)
     assert sorted(ln.get_marker() for ln in marks) == ["^", "v"]
     assert all(ln.get_xdata()[0] == res.points[1].airspeed_mps for ln in marks)
     ends = [f"{x:.3g}" for x in res.points[1].flutter.damping_ci()]
-    assert sorted(t.get_text() for t in ax.texts) == sorted(ends)
+    assert sorted(t.get_text() for t in ax.texts if t.get_gid() != "airspeed-line") == sorted(ends)
 
 
 def test_flutter_test_legend_covers_no_bar(tmp_path, monkeypatch, panel):
@@ -169,6 +169,28 @@ def test_flutter_test_draws_both_predictions_and_the_zw_margin(tmp_path, monkeyp
     no_zw = flutter_result(panel, [0.5, 0.6, 0.7], [0.001] * 3, first=False)
     fig = draw_flutter_test(tmp_path, monkeypatch, panel, no_zw)
     assert no_zw.final.zw is None and not any("ZW" in ax.get_ylabel() for ax in fig.axes)
+
+
+def test_each_u_f_line_is_named_beside_it_and_close_ones_stay_readable(tmp_path, monkeypatch, panel):
+    """vg.png: the ZW prediction's line sat on the model's U_f line (10.47 against 10.48 m/s) and only the legend,
+    below the panels, said which was which. Each line is named at the top of the damping panel now; a label
+    whose line is close to the previous one's goes lower, so no two labels overlap."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.set_xlim(3.0, 12.0)
+    texts = plots.label_airspeed_lines(ax, [(10.48, "model U_f 10.48", "k"), (10.47, "ZW 10.47", "C2"),
+                                            (11.44, "trend 11.44", "C1")])
+    fig.canvas.draw()
+    boxes = {t.get_text().strip(): t.get_window_extent() for t in texts}
+    assert not boxes["ZW 10.47"].overlaps(boxes["model U_f 10.48"])
+    assert boxes["trend 11.44"].y1 == pytest.approx(boxes["ZW 10.47"].y1)  # far from its neighbour: at the top
+    plt.close(fig)
+    res = flutter_result(panel, [0.5, 0.6, 0.7, 0.8, 0.85], [0.0005] * 5)
+    ax_z = draw_flutter_test(tmp_path, monkeypatch, panel, res).axes[0]
+    named = sorted(t.get_text().split()[-1] for t in ax_z.texts if t.get_gid() == "airspeed-line")
+    expected = [res.final.trend.speed_mps, res.final.zw.speed_mps, panel[1]]
+    assert named == sorted(f"{x:.2f}" for x in expected)
 
 
 def test_lco_vs_airspeed_of_a_subcritical_run_says_why_its_frequency_panel_is_empty(tmp_path, monkeypatch):

@@ -233,8 +233,13 @@ def plot_control_damping(speeds: np.ndarray, open_roots: list[np.ndarray], close
     return _save(fig, path)
 
 
-#: the flutter-test predictors: their name on the figure and colour (the damping trend's matches its curve)
-_PREDICTORS = {"damping-trend": ("damping trend", "C1"), "flutter-margin": ("ZW flutter margin", "C2")}
+#: the flutter-test predictors: their name on the figure, colour (the damping trend's matches its curve) and the
+#: short name beside their line
+_PREDICTORS = {"damping-trend": ("damping trend", "C1", "trend"), "flutter-margin": ("ZW flutter margin", "C2", "ZW")}
+
+
+def _predictor_style(method: str) -> tuple[str, str, str]:
+    return _PREDICTORS.get(method, (method, "C3", method))
 #: a 95 % bar is drawn in full unless it reaches beyond the other data by more than this many times their span
 BAR_CAP_SPANS = 3.0
 
@@ -275,7 +280,7 @@ def _prediction_lines(axes, decision: Any, u_hi: float) -> None:
     for pred in (decision.trend, decision.zw):
         if pred is None:
             continue
-        name, color = _PREDICTORS.get(pred.method, (pred.method, "C3"))
+        name, color, _ = _predictor_style(pred.method)
         used = pred is decision.prediction
         lo, hi = pred.ci_mps
         ci = "" if not np.isfinite(lo) else f" (95 % {lo:.2f} .. {f'{hi:.2f}' if np.isfinite(hi) else 'open'})"
@@ -288,6 +293,37 @@ def _prediction_lines(axes, decision: Any, u_hi: float) -> None:
             if used and np.isfinite(lo):
                 ax.axvspan(lo, min(hi, u_hi), color=color, alpha=0.12, lw=0)
             label = None
+
+
+#: vertical-line labels closer than this fraction of the airspeed axis are drawn at alternating heights
+LINE_LABEL_GAP = 0.04
+
+
+def label_airspeed_lines(ax, lines: Sequence[tuple[float, str, str]], gap: float = LINE_LABEL_GAP) -> list[Any]:
+    """Name each vertical line (airspeed m/s, text, colour) at the top of ``ax``, beside the line; a line within
+    ``gap`` of the axis span of the previous label's line gets its label lower down, so that two close lines
+    (a prediction on the model's U_f) keep both labels readable. Returns the texts (gid ``airspeed-line``)."""
+    from matplotlib.transforms import blended_transform_factory
+
+    lo, hi = ax.get_xlim()
+    where = blended_transform_factory(ax.transData, ax.transAxes)
+    texts, last_x, level = [], None, 0
+    for x, text, color in sorted(lines):
+        level = (level + 1) % 2 if last_x is not None and x - last_x < gap * (hi - lo) else 0
+        texts.append(ax.text(x, (0.97, 0.5)[level], f" {text}", transform=where, rotation=90, ha="right",
+                             va="top", fontsize=7, color=color, gid="airspeed-line",
+                             bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 0.5}))
+        last_x = x
+    return texts
+
+
+def _prediction_labels(decision: Any) -> list[tuple[float, str, str]]:
+    """(U_f, short name, colour) of each predictor of ``decision`` that crossed zero."""
+    if decision is None:
+        return []
+    preds = [p for p in (decision.trend, decision.zw) if p is not None and np.isfinite(p.speed_mps)]
+    return [(p.speed_mps, f"{_predictor_style(p.method)[2]} {p.speed_mps:.2f}", _predictor_style(p.method)[1])
+            for p in preds]
 
 
 def _margin_panel(ax, points: Sequence[Any], decision: Any) -> None:
@@ -366,6 +402,7 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
     for ax in axes:
         ax.axvline(uf, color="k", lw=0.8, ls="-.", label=f"model linear U_f {uf:.2f} m/s" if ax is ax_z else None)
         ax.grid(alpha=0.3)
+    label_airspeed_lines(ax_z, [(uf, f"model U_f {uf:.2f}", "k"), *_prediction_labels(d)])
     ax_z.axhline(0, color="k", lw=0.5)
     others = [vg.damping_ratio[shown, k] for k in range(vg.poles.shape[1]) if k != mode - 1]
     limits = damping_limits(np.array(values), zci, others)
