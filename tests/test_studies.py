@@ -357,7 +357,12 @@ def test_killed_worker_study_completes_without_duplicates(serial, flutter_spec, 
 
 
 def test_external_scheduler_and_workers(serial, flutter_spec, tmp_path):
-    """`dask scheduler` + two `dask worker` processes on 127.0.0.1; the CLI on a terminal shows a progress bar."""
+    """`dask scheduler` + two `dask worker` processes on 127.0.0.1, started as the README starts them (each under
+    its nanny, which gives it one BLAS thread as the study's own workers have); the CLI on a terminal shows a
+    progress bar. With `--no-nanny` the workers ran two OpenBLAS threads and their flutter speeds differed from the
+    serial run's in the 12th digit: the test failed when run alone, and passed in the suite only because an earlier
+    in-process LocalCluster had left OPENBLAS_NUM_THREADS=1 in this process's environment (Dask sets its nanny's
+    pre-spawn-environ in the parent); one such worker also ignored its SIGINT (30 s to the kill)."""
     sched_file = tmp_path / "scheduler.json"
     env = dict(os.environ)
     logs = open(tmp_path / "cluster.log", "w")
@@ -367,7 +372,7 @@ def test_external_scheduler_and_workers(serial, flutter_spec, tmp_path):
     try:
         for _ in range(2):
             procs.append(subprocess.Popen([str(BIN / "dask"), "worker", "--scheduler-file", str(sched_file),
-                                           "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
+                                           "--host", "127.0.0.1", "--nthreads", "1",
                                            "--dashboard-address", ":0"], stdout=logs, stderr=subprocess.STDOUT,
                                           env=env))
         from dask.distributed import Client
