@@ -27,11 +27,16 @@ class UsageError(Exception):
 
 
 def _config(args: argparse.Namespace) -> PanelConfig:
-    """The run's configuration; also refuses a ``--plot`` that is not a .png file name, before any computation
-    (matplotlib appended .png to other names, and the JSON named a file that was never written)."""
+    """The run's configuration; also refuses a ``--plot`` that is not a .png file name and makes its directory,
+    before any computation (matplotlib appended .png to other names, and the JSON named a file that was never
+    written; a directory it could not write in lost a finished hour-long run)."""
     plot = getattr(args, "plot", None)
-    if plot is not None and Path(plot).suffix.lower() != ".png":
-        raise UsageError(f"--plot must name a .png file, got {plot!r}")
+    if plot is not None:
+        if Path(plot).suffix.lower() != ".png":
+            raise UsageError(f"--plot must name a .png file, got {plot!r}")
+        if Path(plot).is_dir():
+            raise UsageError(f"--plot: {plot} is a directory: name the .png file in it")
+        make_output_dir(Path(plot).parent, "--plot")
     return load_config(args.params, args.set or ())
 
 
@@ -450,10 +455,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
     from panel_rig.analysis.report import build_report
 
     cfg = _config(args)
-    if not str(args.out).strip():
-        raise UsageError("--out must name a directory, got an empty string")
     _duration(args.sweep_duration, "--sweep-duration", cfg)
-    out = Path(args.out)
+    out = make_output_dir(args.out, "--out")
     result = build_report(cfg, out, log=lambda s: print(f"panel-rig paper: {s}", file=sys.stderr),
                           sweep_s=args.sweep_duration)
     print((out / "report.md").read_text() if not args.json else jsonio.dumps(result, default=float))

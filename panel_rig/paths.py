@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 
 def make_output_dir(path: str | Path, option: str) -> Path:
-    """Make an output directory now (parents too), before any work; ValueError naming the option when it cannot
-    be made (a result that could not be written after the run lost the run)."""
+    """Make an output directory now (parents too) and check that a file can be written in it, before any work;
+    ValueError naming the option when it cannot (a result that could not be written after the run lost the run:
+    /proc exists, but nothing can be written there)."""
     if not str(path).strip():  # '' is the working directory: outputs spread into a checkout
         raise ValueError(f"{option} must name a directory, got an empty string")
     path = Path(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ValueError(f"{option}: {path} is a file, not a directory") from None
     except OSError as exc:
         raise ValueError(f"{option}: cannot create the directory {path}: {exc.strerror or exc}") from None
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{option}: cannot write in the directory {path}: {exc.strerror or exc}") from None
     return path
 
 

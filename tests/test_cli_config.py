@@ -97,6 +97,11 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--vg", "0:100:1e-9"], "points"),
     (["lco", "--airspeed", "11", "--duration", "1", "--plot", "out/x"], ".png"),  # the JSON named a file not written
     (["paper", "--out", ""], "--out"),
+    # an output that cannot be written is found before the run, not after it (an hour's lco lost its numbers)
+    (["lco", "--airspeed", "10", "--duration", "1", "--plot", "/proc/x.png"], "--plot: cannot write in"),
+    (["flutter", "--plot", "/proc/x.png"], "--plot: cannot write in"),
+    (["lco-sweep", "--airspeeds", "10:11:1", "--duration", "1", "--plot", "README.md/x.png"], "is a file"),
+    (["paper", "--out", "README.md"], "--out: README.md is a file, not a directory"),
     (["paper", "--out", "/proc/never_written", "--sweep-duration", "inf"], "--sweep-duration"),
 ])
 def test_bad_input_exits_2_with_one_line(args, needle):
