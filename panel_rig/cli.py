@@ -59,7 +59,9 @@ def _points(a: float, b: float, step: float, option: str) -> np.ndarray:
     n = int(np.ceil((b + 0.5 * step - a) / step))  # what np.arange(a, b + step / 2, step) makes, before making it
     if n > MAX_RANGE_POINTS:
         raise UsageError(f"{option} gives {n} points, more than {MAX_RANGE_POINTS}: use a larger step")
-    return np.arange(a, b + 0.5 * step, step)
+    # a + k step, rounded to 10 decimals: the points the user typed (np.arange's 12.549999999999999 for 10:27:0.85
+    # reached the JSON); the rounding moves none by more than 5e-11
+    return np.round(a + step * np.arange(n), 10)
 
 
 def _emit(args: argparse.Namespace, payload: dict[str, Any], table: Callable[[], str]) -> None:
@@ -336,6 +338,11 @@ def _range(text: str, option: str = "--airspeeds") -> np.ndarray:
         a, b, c = (float(x) for x in text.split(":"))
     except ValueError:
         raise UsageError(f"{option} expects START:STOP:STEP, got {text!r}") from None
+    for end, value in (("START", a), ("STOP", b)):  # the bound typed, not the first point past the limit
+        try:
+            _airspeed(value)
+        except UsageError as exc:
+            raise UsageError(f"{option} {end}: {exc}") from None
     return np.array([_airspeed(u) for u in _points(a, b, c, option)])
 
 

@@ -60,7 +60,8 @@ def test_flutter_plot(tmp_path):
     # the lattice is incompressible: no airspeed beyond Mach ~0.3 (a 200 m/s run gave a 781 Hz "LCO")
     (["lco", "--airspeed", "150"], "Mach 0.3"),
     (["lco-sweep", "--airspeeds", "90:110:10"], "Mach 0.3"),
-    (["flutter", "--vg", "10:120:10"], "Mach 0.3"),
+    (["flutter", "--vg", "10:120:10"], "--vg STOP: airspeed must be in [0, 100] m/s"),  # it quoted 101, not 120
+    (["flutter", "--vg", "5:150:1"], "got 150"),
     (["flutter", "--control", "--rate-hz", "0"], "--rate-hz"),  # was a ZeroDivisionError traceback
     (["flutter", "--control", "--plot", "/proc/no_such_dir/x.png"], "/proc/no_such_dir"),  # any OSError: one line
     (["flutter-test", "--domain-id", "300"], "--domain-id"),  # was an RTPS error on stdout
@@ -316,3 +317,13 @@ def test_static_says_when_the_modal_series_is_truncated():
     assert resolved["tip_angle_rad"] < np.pi / 2 and resolved["note"] is None
     cubic = json.loads(run("static", "--tip-load-parameter", "40", "--variant", "full", "--json").stdout)
     assert cubic["tip_u_over_L"] > 1 and "--variant exact" in cubic["note"]  # u/L 3.42 went without a word
+
+
+def test_a_range_s_points_are_the_decimals_typed() -> None:
+    """`lco-sweep --airspeeds 10:27:0.85 --json` listed 12.549999999999999 and 26.999999999999993 (np.arange's sums)."""
+    from panel_rig.cli import _range
+
+    points = _range("10:27:0.85")
+    assert points.size == 21 and points[3] == 12.55 and points[-1] == 27.0
+    assert [float(u) for u in points] == [float(f"{10 + 0.85 * k:.2f}") for k in range(21)]
+    assert list(_range("0:1:0.1")) == [round(0.1 * k, 1) for k in range(11)]
