@@ -418,3 +418,29 @@ def test_damaged_metadata_yaml_is_named_and_rebuilt(tmp_path: Path, capsys: pyte
     assert sum(_rosbags_counts(bag).values()) == _reference_total()
     assert analyze_main([str(bag), "--json"]) == 0
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("content", [b"", b"random bytes, not a recording", b"\x89MCAP0\r\n"],
+                         ids=["empty", "random", "bare_magic"])
+def test_analyze_does_not_send_a_file_recover_cannot_use_to_recover(tmp_path: Path, content: bytes,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """An .mcap of random bytes, none, or the bare magic: analyze said "run `panel-rig bag recover`", and recover
+    then said "not an MCAP file (no valid header)". Now analyze says so itself, in one line, and names no recover."""
+    bag, path = _copy(tmp_path)
+    path.write_bytes(content)
+    assert analyze_main([str(bag)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "not an MCAP file" in lines[0] and "bag recover" not in lines[0], lines
+    assert main_bag_recover(str(bag)) == 2  # and recover agrees
+    assert "not an MCAP file" in capsys.readouterr().err
+
+
+def test_recover_says_it_wrote_a_missing_metadata_yaml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A complete .mcap without metadata.yaml: recover wrote it and said "metadata ok"."""
+    bag, _ = _copy(tmp_path)
+    (bag / "metadata.yaml").unlink()
+    assert main_bag_recover(str(bag)) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 2 and "metadata.yaml was missing: written" in out[0], out
+    assert "already complete" in out[1] and "metadata.yaml written" in out[1] and "metadata ok" not in out[1]
+    assert (bag / "metadata.yaml").is_file() and analyze_main([str(bag), "--json"]) == 0

@@ -104,6 +104,12 @@ class McapScan:
         return self.header_ok and self.complete and not self.problems
 
     @property
+    def recoverable(self) -> bool:
+        """A header or a chunk to rebuild from: what `bag recover` needs (random bytes, an empty file or the bare
+        magic have neither)."""
+        return self.header_ok or bool(self.chunks)
+
+    @property
     def bad_chunks(self) -> list[ChunkInfo]:
         return [c for c in self.chunks if not c.ok]
 

@@ -89,6 +89,8 @@ def verify_bag(bag_dir: Path) -> McapScan:
     scan = scan_mcap(path)
     if not scan.ok:
         _refuse_live(bag_dir)
+        if not scan.recoverable:  # `bag recover` would refuse it too: no header and no chunk to rebuild from
+            raise RecordingError(f"{path} is not an MCAP file (no valid header, no chunk): nothing to recover")
         if scan.truncated and not scan.bad_chunks:
             what = f"{path} has no summary (recorder killed?)"
         else:

@@ -64,11 +64,13 @@ class RecoverReport:
     dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
     dropped_topic_counts: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # what was cleaned up first (damaged metadata.yaml, stale output)
+    metadata_written: bool = False  # a complete MCAP whose metadata.yaml was missing or unreadable
 
     def line(self) -> str:
         """One-line human summary."""
         if self.was_complete:
-            return f"{self.mcap_path}: already complete, {self.messages} messages; metadata ok"
+            metadata = "metadata.yaml written" if self.metadata_written else "metadata ok"
+            return f"{self.mcap_path}: already complete, {self.messages} messages; {metadata}"
         text = (f"{self.mcap_path}: recovered {self.messages} messages in {len(self.topic_counts)} "
                 f"topics from {self.chunks} chunks")
         if self.dropped_chunks:
@@ -260,7 +262,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
     except MetadataError as exc:
         mcap_path, bad_metadata = single_mcap(bag_dir), exc
     scan = scan_mcap(mcap_path)
-    if not scan.header_ok and not scan.chunks:
+    if not scan.recoverable:
         raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
     if bad_metadata is not None:
         damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
@@ -268,9 +270,13 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         notes.append(f"{bag_dir / METADATA_FILE} was unreadable: kept as {damaged.name}, rebuilt from {mcap_path.name}")
     notes += _remove_leftovers(mcap_path)
     if scan.ok:
-        if not (bag_dir / METADATA_FILE).is_file():
+        missing = not (bag_dir / METADATA_FILE).is_file()
+        if missing:
             write_metadata(bag_dir, _summary_from_scan(scan, mcap_path.name))
-        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=scan.message_count, notes=notes)
+            if bad_metadata is None:
+                notes.append(f"{bag_dir / METADATA_FILE} was missing: written from {mcap_path.name}")
+        return RecoverReport(bag_dir, mcap_path, was_complete=True, messages=scan.message_count, notes=notes,
+                             metadata_written=missing)
     summary = BagSummary(file_name=mcap_path.name)
     tmp = mcap_path.with_name(mcap_path.name + ".recovering")
     try:
