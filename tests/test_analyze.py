@@ -190,8 +190,9 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "junk_0.mcap").write_bytes(b"not an mcap file at all")
-    assert main([str(junk)]) == 2
-    assert "bag recover" in _one_error_line(capsys)
+    assert main([str(junk)]) == 2  # recover cannot use it either: not sent there
+    line = _one_error_line(capsys)
+    assert "not an MCAP file" in line and "bag recover" not in line
     with BagWriter(tmp_path / "notip") as writer:
         writer.write("/rig/airspeed_cmd", Float64(data=3.0), 1, qos="reliable")
     assert main([str(tmp_path / "notip")]) == 2
@@ -690,3 +691,18 @@ def test_onset_estimates_that_could_not_be_made_say_why() -> None:
                  if ln.startswith("flutter onset"))
     assert "extrapolated from decay rates: none (needs two plateaus with a measured decay)" in onset
     assert "interpolated across the bracket: 10.40 m/s" in onset  # 10 + 0.25 x 1.2 / 0.75
+
+
+def test_signal_metrics_of_a_response_decayed_to_denormals_and_of_too_few_samples() -> None:
+    """`lco --duration 3600 --json` gave RMS 0.0 beside a peak of 5.5e-322 (the squares underflowed), and
+    `lco --duration 0.001` a dominant frequency of 0.0 Hz for two samples."""
+    from panel_rig.analysis.signals import dominant_frequency_hz, rms
+
+    t = np.arange(4096) / 2048.0
+    wave = np.sin(2 * np.pi * 23.0 * t)
+    for scale in (1.0, 1e-200, 1e-310):
+        assert rms(scale * wave) == pytest.approx(scale * rms(wave), rel=1e-6 if scale > 1e-300 else 1e-3)
+        assert dominant_frequency_hz(scale * wave, 1 / 2048.0) == pytest.approx(23.0, abs=0.05)
+    assert rms(np.zeros(5)) == 0.0
+    assert np.isnan(dominant_frequency_hz(np.array([0.0, 1e-3]), 1e-3))
+    assert np.isnan(dominant_frequency_hz(np.zeros(64), 1e-3))

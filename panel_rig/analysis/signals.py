@@ -6,14 +6,22 @@ import numpy as np
 
 
 def rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
+    """Root mean square, scaled by the largest |x| first: a response decayed to ~1e-160 and below squared to 0
+    (`lco --duration 3600` reported RMS 0.0 beside a peak of 5.5e-322)."""
+    x = np.asarray(x, float)
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    if peak == 0.0 or not np.isfinite(peak):
+        return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+    return peak * float(np.sqrt(np.mean(np.square(x / peak))))
 
 
 def dominant_frequency_hz(x: np.ndarray, dt_s: float) -> float:
-    """Frequency of the largest FFT peak (Hann window, mean removed), refined by parabolic interpolation."""
+    """Frequency of the largest FFT peak (Hann window, mean removed), refined by parabolic interpolation; NaN
+    (no frequency: null in JSON) for fewer than 8 samples or a signal that does not move (it was 0.0 Hz)."""
     x = np.asarray(x, float) - np.mean(x)
     if x.size < 8 or not np.any(x):
-        return 0.0
+        return float("nan")
+    x = x / np.max(np.abs(x))  # a response decayed to denormals keeps its spectrum's shape
     spec = np.abs(np.fft.rfft(x * np.hanning(x.size)))
     k = int(np.argmax(spec[1:]) + 1)
     if 1 <= k < spec.size - 1:
