@@ -478,7 +478,9 @@ def test_uncertainty_summary_and_ranking(cluster, base, tmp_path):
 
 
 def test_bifurcation_summary_says_where_a_branch_diverged(base):
-    """A diverging variant (inertia, linear) has no LCO amplitude: its summary row must not read 'nothing happens'."""
+    """A diverging variant (inertia, linear) has no LCO amplitude: its summary row must not read 'nothing happens'.
+    Each branch names where it first diverged going its way: the down branch, lost at its 14 m/s start and diverged
+    at every step after it, said 'from 10 m/s' (the lowest)."""
     import xarray as xr
 
     from panel_rig.studies.report import summarize
@@ -486,12 +488,13 @@ def test_bifurcation_summary_says_where_a_branch_diverged(base):
     study = parse_spec({"kind": "bifurcation", "airspeeds": [10.0, 12.0, 14.0], "variants": ["inertia"],
                         "direction": "both", "duration_s": 1.0}, base)
     u = np.array([c["airspeed_mps"] for c in study.cases])
-    diverged = u >= 12.0
+    down = np.array([c["direction"] == "down" for c in study.cases])
+    diverged = (u >= 12.0) | down  # up: from 12 m/s; down: from its first step, 14 m/s, on
     ds = xr.Dataset({"airspeed_mps": ("case", u), "diverged": ("case", diverged),
                      "rms_tip_w_over_L": ("case", np.where(diverged, np.nan, 0.0))})
     row = summarize(study, ds)["branches"][0]
     assert row["lco_onset_up_mps"] is None and row["lco_lowest_down_mps"] is None
-    assert row["diverged_up_from_mps"] == 12.0 and row["diverged_down_from_mps"] == 12.0
+    assert row["diverged_up_from_mps"] == 12.0 and row["diverged_down_from_mps"] == 14.0
 
 
 def test_a_flutter_map_with_holes_and_unsorted_levels_still_shows_its_cases(base, tmp_path):

@@ -71,8 +71,11 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
                     row["lco_onset_up_mps"] = float(lco.min()) if lco.size else None
                 else:
                     row["lco_lowest_down_mps"] = float(lco.min()) if lco.size else None
-                # no LCO is not "nothing happens": a branch that left the physical range has no amplitude at all
-                row[f"diverged_{d}_from_mps"] = float(diverged.min()) if diverged.size else None
+                # no LCO is not "nothing happens": a branch that left the physical range has no amplitude at all.
+                # Where it first diverged, going its way (it stays diverged after): the lowest airspeed going up,
+                # the highest going down (the lowest said "9 m/s" for a down branch lost at its 13 m/s start)
+                first = (diverged.min() if d == "up" else diverged.max()) if diverged.size else None
+                row[f"diverged_{d}_from_mps"] = None if first is None else float(first)
             up, down = row.get("lco_onset_up_mps"), row.get("lco_lowest_down_mps")
             row["hysteresis"] = bool(up is not None and down is not None and down < up)
             rows.append(row)
