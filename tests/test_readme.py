@@ -141,3 +141,17 @@ def test_readme_command_works_as_written(cmd: str, scratch: Path, env: dict[str,
     proc = subprocess.run(words, cwd=scratch, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0, f"{cmd}\n{proc.stderr[-2000:]}"
     assert "Traceback" not in proc.stderr
+
+
+def test_the_readme_s_study_spec_is_the_shipped_example() -> None:
+    """The README showed a 0.20..0.30 m, 6-level spec right under `--spec config/studies/flutter_map_small.yaml`,
+    whose file has 0.25..0.29 m in 2 levels: a reader took one for the other. The block now is that file."""
+    import yaml
+
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"```yaml\n(# config/studies/flutter_map_small\.yaml.*?)```", text, re.S)
+    assert block, "the README's commented copy of flutter_map_small.yaml"
+    shown = yaml.safe_load(block[1])
+    shipped = yaml.safe_load((ROOT / "config/studies/flutter_map_small.yaml").read_text())
+    assert shown.pop("aero") == "rom"  # the default the README spells out
+    assert shown == shipped
