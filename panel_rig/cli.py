@@ -329,8 +329,16 @@ def cmd_lco(args: argparse.Namespace) -> int:
         payload["plot"] = str(plot_series(args.plot, t, [(tip, f"{args.variant}, {args.aero}")], "time, s",
                                           "tip w/L", title,
                                           marks=None if gone is None else (np.array([gone]), "diverged")))
-    _emit(args, payload, lambda: "\n".join(f"{k:24s} {v}" for k, v in payload.items()))
+    _emit(args, payload, lambda: _key_value_table(payload))
     return 0
+
+
+def _key_value_table(payload: dict[str, Any]) -> str:
+    """One ``key value`` line per entry; a value that does not exist (None, NaN: null in the JSON) reads "-"."""
+    def shown(v: Any) -> Any:
+        return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else v
+
+    return "\n".join(f"{k:24s} {shown(v)}" for k, v in payload.items())
 
 
 def _range(text: str, option: str = "--airspeeds") -> np.ndarray:

@@ -327,3 +327,12 @@ def test_a_range_s_points_are_the_decimals_typed() -> None:
     assert points.size == 21 and points[3] == 12.55 and points[-1] == 27.0
     assert [float(u) for u in points] == [float(f"{10 + 0.85 * k:.2f}") for k in range(21)]
     assert list(_range("0:1:0.1")) == [round(0.1 * k, 1) for k in range(11)]
+
+
+def test_the_lco_table_shows_a_missing_value_one_way() -> None:
+    """`panel-rig lco` (the table) printed a missing frequency as "nan" and a missing time as "None"."""
+    from panel_rig.cli import _key_value_table
+
+    lines = _key_value_table({"dominant_frequency_hz": float("nan"), "steady_after_s": None, "rms": 0.0,
+                              "diverged": False}).splitlines()
+    assert [line.split()[-1] for line in lines] == ["-", "-", "0.0", "False"]
