@@ -86,12 +86,23 @@ def test_bad_flutter_spec_names_the_key(base, change, needle):
     ({"vary": {"aero.load_point": {"choice": ["quarter", "tip"]}}}, "aero.load_point"),
     ({"samples": 0}, "samples"),
     ({"samples": 100_000_000}, "samples: 100000000 cases exceed"),
+    # 10^6 one-case tasks: the graph's submission failed after 60 s with only "timed out after 60 s."
+    ({"samples": 1_000_000}, "1000000 Dask tasks, more than 100000 .*: set batch: 10 or more"),
+    ({"samples": 100_001}, "set batch: 2 or more"),
     ({"seed": -1}, "seed"),
 ])
 def test_bad_uncertainty_spec_names_the_key(base, change, needle):
     spec = {"kind": "uncertainty", "samples": 50, "seed": 1, "vary": {"air.density_kgpm3": {"uniform": [1.0, 1.3]}}}
     with pytest.raises(ConfigError, match=needle):
         parse_spec({**spec, **change}, base)
+
+
+def test_a_big_study_is_taken_in_batches_that_keep_its_tasks_under_the_limit(base):
+    from panel_rig.studies.spec import MAX_TASKS
+
+    spec = {"kind": "uncertainty", "samples": MAX_TASKS + 1, "seed": 1, "batch": 2,
+            "vary": {"air.density_kgpm3": {"uniform": [1.0, 1.3]}}}
+    assert len(parse_spec(spec, base).cases) == MAX_TASKS + 1
 
 
 def test_bad_bifurcation_spec_names_the_key(base):
