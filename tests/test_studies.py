@@ -508,6 +508,33 @@ def test_bifurcation_summary_says_where_a_branch_diverged(base):
     assert row["diverged_up_from_mps"] == 12.0 and row["diverged_down_from_mps"] == 14.0
 
 
+def test_bifurcation_diverged_marks_sit_above_every_lco_point(base, tmp_path, monkeypatch):
+    """bifurcation.png: the "diverged" x marks, drawn in rows at the panel's top, sat on the full model's LCO point
+    at 12 m/s (the highest data point, at the top of the autoscaled axis). The axis now leaves them room."""
+    import matplotlib.pyplot as plt
+    import xarray as xr
+
+    from panel_rig.studies.report import plot
+
+    study = parse_spec({"kind": "bifurcation", "airspeeds": [10.0, 12.0, 13.0], "variants": ["full", "inertia"],
+                        "direction": "both", "duration_s": 1.0}, base)
+    u = np.array([c["airspeed_mps"] for c in study.cases])
+    inertia = np.array([c["variant"] == "inertia" for c in study.cases])
+    diverged = inertia & (u >= 12.0) | (u == 13.0)
+    rms = np.where(diverged, np.nan, np.where(u >= 12.0, 0.3, 0.001))
+    ds = xr.Dataset({"airspeed_mps": ("case", u), "diverged": ("case", diverged), "rms_tip_w_over_L": ("case", rms)})
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    plot(study, ds, {}, tmp_path)
+    ax = figures[0].axes[0]
+    marks = [ln for ln in ax.lines if ln.get_marker() == "x"]
+    assert marks
+    lowest_mark = min(min(ln.get_ydata()) for ln in marks)  # axes fraction
+    top_point = ax.transLimits.transform((12.0, 0.3))[1]  # the LCO point, in axes fraction
+    assert top_point < lowest_mark - 0.02, (top_point, lowest_mark)
+    figures[0].clf()
+
+
 def test_a_flutter_map_with_holes_and_unsorted_levels_still_shows_its_cases(base, tmp_path):
     """Levels in any order, a column of cases without a flutter speed: every case is drawn (a dot with its value, a
     red cross without one). Before, contourf on the unsorted, NaN-holed grid left both panels blank."""

@@ -141,6 +141,20 @@ def _axis(levels: list[Any]) -> tuple[np.ndarray, list[str] | None]:
     return np.arange(len(levels), dtype=float), [str(v) for v in levels]
 
 
+def _mark_height(row: int) -> float:
+    """Axes-fraction height of the k-th row of a bifurcation panel's "diverged" marks, from the top."""
+    return 0.97 - 0.035 * row
+
+
+def _room_above_data(ax: Any, below: float) -> None:
+    """Raise the y-limit so that every data point sits below the axes fraction ``below`` (the "diverged" marks
+    above it sat on an LCO point at the top of the panel)."""
+    lo, _ = ax.get_ylim()
+    top = ax.dataLim.y1
+    if np.isfinite(top) and top > lo:
+        ax.set_ylim(lo, lo + (top - lo) / below)
+
+
 def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[Path]:
     """The study's figures as PNG in out_dir."""
     import matplotlib
@@ -198,6 +212,7 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
     else:
         n = len(study.grid)
         fig, axes = plt.subplots(1, n, figsize=(6 * n, 4.2), squeeze=False)
+        marker_rows: dict[Any, int] = {}  # per panel: how many rows of "diverged" marks it has at the top
         for ci, ch in enumerate(study.chains):
             ax = axes[0, ch.grid_index]
             color = f"C{study.options['variants'].index(ch.variant)}"
@@ -209,14 +224,17 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
                 div = ds["diverged"].values[list(branch)].astype(bool)
                 if div.any():  # no amplitude to draw: mark the airspeed at the top edge, a row per variant and way
                     row = 2 * study.options["variants"].index(ch.variant) + (d == "down")
-                    ax.plot(u[div], np.full(div.sum(), 0.97 - 0.035 * row), "x", color=color,
+                    ax.plot(u[div], np.full(div.sum(), _mark_height(row)), "x", color=color,
                             transform=ax.get_xaxis_transform(), clip_on=False)
+                    marker_rows[ax] = max(marker_rows.get(ax, 0), row + 1)
             point = study.grid[ch.grid_index]
             title = ", ".join(f"{k} = {v}" for k, v in point.items()) or "bifurcation diagram"
             ax.set_title(f"{title}\n(x at the top: diverged, |tip w/L| over the bound)", fontsize=9)
             ax.set_xlabel("airspeed, m/s")
             ax.set_ylabel("RMS tip w/L")
             ax.legend(fontsize=7)
+        for ax, rows in marker_rows.items():
+            _room_above_data(ax, _mark_height(rows - 1) - 0.06)
         files.append(out_dir / "bifurcation.png")
     fig.tight_layout()
     fig.savefig(files[-1], dpi=110)
