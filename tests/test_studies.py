@@ -155,6 +155,27 @@ def test_an_unreachable_scheduler_is_one_clear_error(base, tmp_path):
         run_study(parse_spec(FLUTTER_SPEC, base), tmp_path, scheduler=f"tcp://127.0.0.1:{port}", timeout_s=2.0)
 
 
+def test_a_port_that_refuses_connections_is_told_from_a_scheduler_that_listens():
+    """`study --scheduler tcp://127.0.0.1:1` waited Dask's whole 60 s connect timeout before its error line; a
+    refused port is now told after REFUSED_GRACE_S (10 s), while a listening one is taken at once."""
+    import socket
+
+    from panel_rig.studies.runner import REFUSED_GRACE_S, refuses_connections
+
+    assert REFUSED_GRACE_S <= 10.0
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        port = listening.getsockname()[1]
+        assert not refuses_connections(f"tcp://127.0.0.1:{port}", 5.0)
+        assert not refuses_connections(f"127.0.0.1:{port}", 5.0)
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert refuses_connections(f"tcp://127.0.0.1:{port}", 0.3)
+    assert not refuses_connections(f"inproc://127.0.0.1:{port}", 0.3)  # not TCP: left to Dask
+
+
 def test_a_lost_cluster_keeps_what_arrived_and_says_the_rerun_resumes(base, tmp_path):
     from dask.distributed import LocalCluster
 

@@ -11,9 +11,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import signal
+import socket
 import sys
 import threading
 import time
+import urllib.parse
 from concurrent.futures import CancelledError
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -58,10 +60,42 @@ class WarmUp(WorkerPlugin):
         C.warm_up(self.kind)
 
 
+#: a scheduler port that refuses connections this long is taken for a wrong address (Dask's own connect kept
+#: retrying for its whole 60 s timeout before `study --scheduler tcp://127.0.0.1:1` said anything)
+REFUSED_GRACE_S = 10.0
+
+
+def refuses_connections(address: str, grace_s: float) -> bool:
+    """True if the TCP host:port of ``address`` (tcp://HOST:PORT or HOST:PORT) refused every connection for
+    ``grace_s`` (a scheduler still starting gets that long); False as soon as one connects, and for any other
+    outcome (no route, a timeout, another protocol), which Dask's own timeout then decides."""
+    parts = urllib.parse.urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:  # a port that is not a number: Dask's message says so
+        return False
+    if parts.scheme != "tcp" or host is None or port is None:
+        return False
+    deadline = time.monotonic() + grace_s
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=grace_s):
+                return False
+        except ConnectionRefusedError:
+            if time.monotonic() >= deadline:
+                return True
+            time.sleep(0.25)  # polling a remote port, not synchronising with our own work
+        except OSError:
+            return False
+
+
 @contextlib.contextmanager
 def connect(workers: int | None = None, scheduler: str | None = None, timeout_s: float = 60.0) -> Iterator[Client]:
     """A client of ``scheduler`` (an address), else of a new LocalCluster with ``workers`` processes."""
     if scheduler:
+        if refuses_connections(scheduler, min(timeout_s, REFUSED_GRACE_S)):
+            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler}: connection refused (nothing "
+                               f"listens on that port; tried for {min(timeout_s, REFUSED_GRACE_S):g} s)")
         try:
             client = Client(scheduler, timeout=f"{timeout_s}s")
         except OSError as exc:
