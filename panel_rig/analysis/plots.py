@@ -240,6 +240,8 @@ _PREDICTORS = {"damping-trend": ("damping trend", "C1", "trend"), "flutter-margi
 
 def _predictor_style(method: str) -> tuple[str, str, str]:
     return _PREDICTORS.get(method, (method, "C3", method))
+
+
 #: a 95 % bar is drawn in full unless it reaches beyond the other data by more than this many times their span
 BAR_CAP_SPANS = 3.0
 
