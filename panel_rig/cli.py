@@ -554,9 +554,9 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
     if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
         raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
-    # where the results go is checked before the test runs, not after (a failed plot lost the whole run)
+    # where the results go is checked before the test runs, not after (a failed plot lost the whole run; the
+    # --plot directory is made by _config)
     make_output_dir(Path(args.bag_dir), "--bag-dir")
-    make_output_dir(Path(args.plot).parent, "--plot")
     if args.rerun:
         prepare_rrd_path(args.rerun, "--rerun")
     try:
