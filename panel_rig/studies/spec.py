@@ -41,8 +41,8 @@ KEYS: dict[str, tuple[str, ...]] = {
     "bifurcation": ("kind", "vary", "set", "aero", "scheme", "airspeeds", "variants", "direction", "duration_s"),
 }
 MAX_CASES = 10_000_000
-#: Dask tasks of one flutter study (cases / batch): 100,000 one-case tasks started computing within ~40 s here;
-#: 1,000,000 made a 73 MiB graph whose submission failed after 60 s with "timed out after 60 s."
+#: Dask tasks of one flutter study (cases / batch): a study of 100,000 one-case tasks had stored 1,571 cases 75 s
+#: after its start here; 1,000,000 made a 73 MiB graph whose submission failed after 60 s ("timed out after 60 s.")
 MAX_TASKS = 100_000
 
 
