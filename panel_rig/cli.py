@@ -18,7 +18,7 @@ from panel_rig import jsonio
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
-from panel_rig.paths import make_output_dir, prepare_rrd_path
+from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Interrupted
 
 
@@ -27,16 +27,17 @@ class UsageError(Exception):
 
 
 def _config(args: argparse.Namespace) -> PanelConfig:
-    """The run's configuration; also refuses a ``--plot`` that is not a .png file name and makes its directory,
-    before any computation (matplotlib appended .png to other names, and the JSON named a file that was never
-    written; a directory it could not write in lost a finished hour-long run)."""
+    """The run's configuration; also refuses a ``--plot`` that is not a .png file name or whose directory cannot
+    be made and written in, before any computation (matplotlib appended .png to other names, and the JSON named a
+    file that was never written; a directory it could not write in lost a finished hour-long run). The directory is
+    made when the figure is saved, so a command refused for another option leaves none behind."""
     plot = getattr(args, "plot", None)
     if plot is not None:
         if Path(plot).suffix.lower() != ".png":
             raise UsageError(f"--plot must name a .png file, got {plot!r}")
         if Path(plot).is_dir():
             raise UsageError(f"--plot: {plot} is a directory: name the .png file in it")
-        make_output_dir(Path(plot).parent, "--plot")
+        check_output_dir(Path(plot).parent, "--plot")
     return load_config(args.params, args.set or ())
 
 
@@ -555,7 +556,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
         raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
     # where the results go is checked before the test runs, not after (a failed plot lost the whole run; the
-    # --plot directory is made by _config)
+    # --plot directory is checked by _config)
     make_output_dir(Path(args.bag_dir), "--bag-dir")
     if args.rerun:
         prepare_rrd_path(args.rerun, "--rerun")

@@ -27,6 +27,20 @@ def make_output_dir(path: str | Path, option: str) -> Path:
     return path
 
 
+def check_output_dir(path: str | Path, option: str) -> Path:
+    """`make_output_dir`'s check without leaving a trace: the directories it had to make are removed again (a
+    command refused for another option left an empty directory behind); the writer makes them when it writes."""
+    path = Path(path)
+    missing = [d for d in (path, *path.parents) if not d.exists()]
+    make_output_dir(path, option)
+    for made in missing:  # deepest first
+        try:
+            made.rmdir()
+        except OSError:  # something was put there meanwhile: it stays
+            break
+    return path
+
+
 def rrd_path_problem(path: str | Path) -> str | None:
     """Why a Rerun recording cannot be saved at ``path``, or None: it must name a .rrd file (rerun replaces
     whatever is there: a typo once overwrote a profile YAML) under no ancestor that is a file. A missing directory

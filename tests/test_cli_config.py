@@ -38,7 +38,7 @@ def test_flutter_json(extra):
 
 
 def test_flutter_plot(tmp_path):
-    png = tmp_path / "fig3.png"
+    png = tmp_path / "new" / "dir" / "fig3.png"  # its directory is made when the figure is saved
     out = run("flutter", "--plot", str(png))
     assert out.returncode == 0, out.stderr
     assert png.stat().st_size > 10_000
@@ -111,6 +111,15 @@ def test_bad_input_exits_2_with_one_line(args, needle):
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_refused_command_leaves_no_plot_directory(tmp_path):
+    """--plot's directory is checked before the run, but a command refused for another option made it and left it
+    empty behind its error line; now it is made only when the figure is saved."""
+    plot_dir = tmp_path / "new" / "dir"
+    out = run("lco", "--airspeed", "150", "--plot", str(plot_dir / "x.png"))
+    assert out.returncode == 2 and "Mach 0.3" in out.stderr
+    assert not (tmp_path / "new").exists()
 
 
 @pytest.mark.parametrize("args", [["modes"], ["modes", "--json"]])
