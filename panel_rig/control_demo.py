@@ -177,8 +177,14 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
     u_f = design.open_loop_flutter_mps
     delay_s = effective_delay(delay_ms * 1e-3, RATE_HZ, cfg.dt_s)
     pred = closed_loop_flutter(model, design.law, LoopModel(ControlSettings().bandwidth_hz, delay_s))
-    if pred.speed_mps is None:
-        raise DemoError(f"the linear model predicts no closed-loop flutter (or a low-speed instability): {pred}")
+    if pred.speed_mps is None or pred.speed_mps <= u_f:  # nothing suppressed: the demo has nothing to show
+        at = ("no closed-loop flutter below 2.5 U_f" if pred.speed_mps is None and not pred.unstable_at_low_speed
+              else "the loop unstable from low speed" if pred.speed_mps is None or pred.speed_mps < 0.5 * u_f
+              else f"closed-loop flutter at {pred.speed_mps:.3f} m/s, below the open loop's {u_f:.3f} m/s")
+        raise DemoError(f"with a {delay_s * 1e3:.2f} ms loop delay (command age {delay_ms:g} ms) the linear model "
+                        f"predicts {at}: the delay is too long for the law (robust to "
+                        f"{design.notes['robust_delay_s'] * 1e3:.1f} ms); see panel-rig flutter --control "
+                        f"--command-age-ms {delay_ms:g}")
     log(f"design: gain {design.law.gain_nspm2:g} N s/m^2; open-loop U_f {u_f:.3f} m/s; predicted closed-loop U_f "
         f"{pred.speed_mps:.3f} m/s with loop delay {delay_s * 1e3:.2f} ms (command age {delay_ms:g} ms)")
 

@@ -102,3 +102,16 @@ def test_a_failed_control_demo_writes_what_it_measured(tmp_path: Path, monkeypat
     assert summary["node_exit"] == 0 and summary["controller_exit"] == 0
     assert summary["quiet"] is None and summary["onset_growth_rates_per_s"] == []
     assert Path(summary["bag"], "metadata.yaml").exists()
+
+
+def test_a_delay_the_law_cannot_take_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    """A 50 ms command age: the linear model (the delay as cascaded Padé sections) predicts the loop unstable from
+    low speed. The demo once predicted 13.73 m/s there (one Padé approximant of the whole delay), started the node
+    and its rig aborted at 1.2 U_f; it now refuses, naming the delay, before any node runs."""
+    out, bags = tmp_path / "out", tmp_path / "bags"
+    proc = subprocess.run([sys.executable, "-m", "panel_rig.cli", "control-demo", "--delay-ms", "50", "--out",
+                           str(out), "--bag-dir", str(bags)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "51.24 ms loop delay" in lines[0] and "unstable from low speed" in lines[0], proc.stderr
+    assert list(bags.iterdir()) == [] and list(out.iterdir()) == []  # no node ran, nothing recorded
