@@ -128,6 +128,13 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
                     max_points=max_points, progress=progress)
 
 
+def flutter_line(index: int, airspeed_mps: float) -> str:
+    """The line of a test point that fluttered (the tip past its flutter fraction of L, or the rig's abort)."""
+    from panel_rig.analysis.flutter_test import fluttered_reason
+
+    return f"point {index}: {airspeed_mps:.3f} m/s: {fluttered_reason(airspeed_mps)}; stop (the tunnel to 0 m/s)"
+
+
 def point_line(index: int, point: Any, decision: Any) -> str:
     """One line per test point while a test runs: the identified flutter mode (95 % interval) and what comes
     next, so a test stopped half-way has shown what it found."""
@@ -215,7 +222,9 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
         # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
         with sigterm_exits():
-            run_procedure(measure, bands, settings, on_point, res)
+            run_procedure(measure, bands, settings, on_point, res,
+                          on_flutter=None if progress is None else
+                          lambda u: progress(flutter_line(len(res.points) + 1, u)))
     except (KeyboardInterrupt, SystemExit) as exc:
         stopped = interruption(exc)
         if stopped is None:

@@ -410,3 +410,22 @@ def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
     ahead = FlutterTestResult(points=pts[:1], max_airspeed_mps=7.0)  # the 7 m/s point's result never came
     take_late_result(ahead, [result(1, 50.0), result(2, 185.0)])
     assert len(cut.points) == len(ahead.points) == 1
+
+
+def test_a_test_that_flutters_at_its_first_point_says_so(tmp_path, capsys):
+    """`flutter-test --start-mps 12` (1.15 U_f): the first point fluttered. The test printed no line for it, its
+    stop reason was null and its plot ended below 12 m/s without the point. Now the point's line, the stop reason
+    (the node monitor's text) and a mark on the plot say where it fluttered."""
+    import json
+
+    from panel_rig.cli import main
+
+    png = tmp_path / "vg.png"
+    code = main(["flutter-test", "--in-process", "--start-mps", "12", "--dwell", "20", "--json",
+                 "--bag-dir", str(tmp_path / "bags"), "--plot", str(png)])
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert code == 1 and d["fluttered"] and d["test_points"] == []
+    assert d["stop_reason"] == "fluttered at 12.000 m/s"
+    assert "point 1: 12.000 m/s: fluttered at 12.000 m/s; stop" in err, err
+    assert png.stat().st_size > 0 and d["plot"] == str(png)

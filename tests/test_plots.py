@@ -256,3 +256,18 @@ def test_spectrogram_colours_span_the_band_drawn(tmp_path, monkeypatch):
                                               shown.max()), abs=1e-6)
     assert shown.min() < image.get_clim()[0]  # the few cells below the floor take the bottom colour
     assert image.get_clim()[1] < np.asarray(drawn).max() - 20.0  # the 90 Hz tone is not the top colour
+
+
+def test_flutter_test_plot_marks_where_the_test_fluttered(tmp_path, monkeypatch, panel):
+    """A test that fluttered at 1.15 U_f (no point identified there): the plot ended at 1.1 U_f and showed nothing
+    of it. The airspeed is drawn and named in every panel."""
+    _, uf, _ = panel
+    res = flutter_result(panel, [0.5, 0.6], [0.0062, 0.0032], [0.0005, 0.002])
+    res.fluttered, res.max_airspeed_mps = True, 1.15 * uf
+    fig = draw_flutter_test(tmp_path, monkeypatch, panel, res)
+    ax = fig.axes[0]
+    assert ax.get_xlim()[1] >= 1.15 * uf
+    marks = [a for a in ax.lines if a.get_gid() == "fluttered"]
+    assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(1.15 * uf)
+    labels = [t.get_text() for t in ax.texts if t.get_gid() == "airspeed-line"]
+    assert f" fluttered {1.15 * uf:.2f}" in labels

@@ -285,10 +285,17 @@ class FlutterTestResult:
 
     def _stop_reason(self) -> str | None:
         d = self.final
+        if self.interrupted is None and self.fluttered:  # as the node's monitor says it (a first point that
+            return fluttered_reason(self.max_airspeed_mps)  # fluttered gave no reason; a later one the last go-on)
         if self.interrupted is None:
             return None if d is None else d.reason
         done = "" if d is None or not d.stop else f"; the procedure had stopped: {d.reason}"
         return f"interrupted by {self.interrupted} after {len(self.points)} test point(s){done}"
+
+
+def fluttered_reason(airspeed_mps: float) -> str:
+    """Why a test stopped on flutter (the node's monitor publishes the same text)."""
+    return f"fluttered at {airspeed_mps:.3f} m/s"
 
 
 def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, signal_name: str
@@ -303,11 +310,13 @@ def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, si
 
 def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], settings: FlutterTestSettings,
                on_point: Callable[[TestPoint, Decision], None] | None = None,
-               res: FlutterTestResult | None = None) -> FlutterTestResult:
+               res: FlutterTestResult | None = None,
+               on_flutter: Callable[[float], None] | None = None) -> FlutterTestResult:
     """The procedure's loop: ``next_point(U)`` sets the airspeed, dwells and returns (the identified test point,
-    fluttered); a decision after each point; stops on the decision or on flutter. The identification happens
-    wherever ``next_point`` gets it from (here for :func:`run_procedure`, in the rig node for the live test).
-    ``res``: the caller's result to fill (a test stopped part-way leaves the points so far in it)."""
+    fluttered); a decision after each point (``on_point``); stops on the decision or on flutter (``on_flutter(U)``).
+    The identification happens wherever ``next_point`` gets it from (here for :func:`run_procedure`, in the rig
+    node for the live test). ``res``: the caller's result to fill (a test stopped part-way leaves the points so far
+    in it)."""
     res = FlutterTestResult() if res is None else res
     u: float | None = settings.start_mps
     while u is not None:
@@ -315,6 +324,8 @@ def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], set
         pt, fluttered = next_point(u)
         if fluttered or pt is None:
             res.fluttered = res.fluttered or fluttered
+            if fluttered and on_flutter is not None:
+                on_flutter(u)
             break
         res.points.append(pt)
         d = decide(res.points, settings)
@@ -328,10 +339,11 @@ def run_points(next_point: Callable[[float], tuple[TestPoint | None, bool]], set
 def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray | None, bool]],
                   bands: Callable[[float], list[tuple[float, float]]], settings: FlutterTestSettings,
                   on_point: Callable[[TestPoint, Decision], None] | None = None,
-                  res: FlutterTestResult | None = None) -> FlutterTestResult:
+                  res: FlutterTestResult | None = None,
+                  on_flutter: Callable[[float], None] | None = None) -> FlutterTestResult:
     """Drive a test: ``measure(U)`` sets the airspeed, dwells and returns (measured tip, dt, shaker force or None,
-    fluttered); identification here and decision after each point; stops on the decision or on flutter. ``res``:
-    as for :func:`run_points`."""
+    fluttered); identification here and decision after each point; stops on the decision or on flutter. ``res``,
+    ``on_flutter``: as for :func:`run_points`."""
 
     def next_point(u: float) -> tuple[TestPoint | None, bool]:
         tip, dt, force, fluttered = measure(u)
@@ -339,7 +351,7 @@ def run_procedure(measure: Callable[[float], tuple[np.ndarray, float, np.ndarray
             return None, True
         return identify_point(tip, dt, u, bands(u), force, settings.ssi), False
 
-    return run_points(next_point, settings, on_point, res)
+    return run_points(next_point, settings, on_point, res, on_flutter)
 
 
 def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: float

@@ -364,7 +364,8 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
     pts = [p for p in res.points if p.flutter is not None]
     tested = [p.airspeed_mps for p in res.points]
     preds = [] if d is None else [p.speed_mps for p in (d.trend, d.zw) if p is not None and np.isfinite(p.speed_mps)]
-    u_hi = max([uf * 1.1] + tested + preds)  # the model drawn to every predicted U_f
+    flutter_at = [res.max_airspeed_mps] if res.fluttered else []  # where the test fluttered (no point there)
+    u_hi = max([uf * 1.1] + tested + preds + flutter_at)  # the model drawn to every predicted U_f
     grid = np.linspace(min([0.3 * uf] + tested), u_hi, 60)
     vg = vg_diagram(model, grid)
     zw = d is not None and d.zw is not None
@@ -404,7 +405,12 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
     for ax in axes:
         ax.axvline(uf, color="k", lw=0.8, ls="-.", label=f"model linear U_f {uf:.2f} m/s" if ax is ax_z else None)
         ax.grid(alpha=0.3)
-    label_airspeed_lines(ax_z, [(uf, f"model U_f {uf:.2f}", "k"), *_prediction_labels(d)])
+    for u_fl in flutter_at:
+        for ax in axes:
+            ax.axvline(u_fl, color="C3", lw=1.2, label=f"fluttered at {u_fl:.2f} m/s" if ax is ax_z else None)
+        ax_z.plot([u_fl], [0.0], "X", color="C3", ms=10, gid="fluttered")
+    label_airspeed_lines(ax_z, [(uf, f"model U_f {uf:.2f}", "k"), *_prediction_labels(d),
+                                *[(u_fl, f"fluttered {u_fl:.2f}", "C3") for u_fl in flutter_at]])
     ax_z.axhline(0, color="k", lw=0.5)
     others = [vg.damping_ratio[shown, k] for k in range(vg.poles.shape[1]) if k != mode - 1]
     limits = damping_limits(np.array(values), zci, others)

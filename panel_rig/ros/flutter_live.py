@@ -115,7 +115,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     with open(log_path, "w") as log:  # its own session: a Ctrl-C in the terminal reaches this process only, which
         node = spawn(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)  # winds off before stopping the node
     from panel_rig.analysis.flutter_test import FlutterTestResult, interrupted_result
-    from panel_rig.flutter_cli import point_line, stopped_message
+    from panel_rig.flutter_cli import flutter_line, point_line, stopped_message
     from panel_rig.ros.flutter_client import RigGone
 
     drive = Drive(FlutterTestResult())
@@ -124,6 +124,10 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         if progress is not None:
             progress(point_line(len(drive.res.points), point, decision))
 
+    def on_flutter(airspeed_mps: float) -> None:
+        if progress is not None:
+            progress(flutter_line(len(drive.res.points) + 1, airspeed_mps))
+
     stopped = None
     try:
         # a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between rclpy
@@ -131,7 +135,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         # node stopped, the points so far reported
         stop_request = StopRequest()
         with signals_set(stop_request):
-            _drive(node, did, settings, startup_s, drive, on_point, stop_request)
+            _drive(node, did, settings, startup_s, drive, on_point, stop_request, on_flutter)
     except RigGone as exc:
         raise RigGone(f"{exc} (node log: {log_path})") from None
     except (KeyboardInterrupt, SystemExit) as exc:
@@ -192,7 +196,8 @@ def _finite(x: Any) -> float | None:
 
 
 def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float, drive: Drive,
-           on_point: Callable[[Any, Any], None] | None = None, stop_request: StopRequest | None = None) -> None:
+           on_point: Callable[[Any, Any], None] | None = None, stop_request: StopRequest | None = None,
+           on_flutter: Callable[[float], None] | None = None) -> None:
     """The client's side, in its own rclpy context (the calling process may have another); fills ``drive``, also
     when stopped part-way."""
     import rclpy
@@ -227,7 +232,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
             return pt, fluttered
 
         try:
-            run_points(next_point, settings, on_point, drive.res)
+            run_points(next_point, settings, on_point, drive.res, on_flutter)
         except BaseException:  # Ctrl-C, SIGTERM, a lost node: the wind off first, as an operator stops a test
             drive.test_s = time.monotonic() - t1
             with contextlib.suppress(Exception):
