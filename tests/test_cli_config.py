@@ -68,6 +68,8 @@ def test_flutter_plot(tmp_path):
     # rcl's argument errors were tracebacks (from remove_ros_args or the node's creation)
     (["run", "--ros-args", "--params-file", "/no/such/file.yaml"], "Couldn't parse params file"),
     (["run", "--fast", "--ros-args", "-p", "publish_rate_hz"], "quote it"),
+    # a value out of range: the node's logger and the command each printed it (the first with the name repeated)
+    (["run", "--ros-args", "-p", "publish_rate_hz:=-5"], "invalid parameters: publish_rate_hz: Invalid parameter"),
     (["run", "--ros-args", "-r", "__ns:=/rig/"], "must not end with a '/'"),
     (["control", "--ros-args", "-p"], "bad --ros-args"),
     (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),

@@ -188,7 +188,7 @@ class RigNode(Node):
             try:
                 self.declare_parameter(name, default, descriptor)
             except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
-                problems.append(f"{name}: {exc}")
+                problems.append(f"{name}: {str(exc).removesuffix(f': {name}')}")  # rclpy ends it with the name
         if problems:
             raise StartupError("invalid parameters: " + "; ".join(problems))
         unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})

@@ -20,7 +20,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from panel_rig.config import ConfigError, number_if_text, read_params_file
-from panel_rig.ros.node import NODE_NAME, RigNode, StartupError, StepperFactory
+from panel_rig.ros.node import RigNode, StartupError, StepperFactory
 from panel_rig.ros.params import parameter_table
 from panel_rig.ros.session import ros_arguments_problem, ros_rules, ros_session
 
@@ -165,9 +165,7 @@ def main(argv: Sequence[str] | None = None, stepper_factory: StepperFactory | No
             executor.add_node(node)
             spin(node, executor, stop.is_set)
             node.get_logger().info(f"stopping: {node.stats()}")
-        except StartupError as exc:
-            logger = node.get_logger() if node is not None else rclpy.logging.get_logger(NODE_NAME)
-            logger.error(str(exc))
+        except StartupError as exc:  # one line (the node's logger printed it a second time on the console)
             print(f"{prog}: {exc}", file=sys.stderr)
             code = 2
         finally:
