@@ -18,13 +18,21 @@ marched in blocks as fast mode does) in this process, recorded to a bag with the
 
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from panel_rig.processes import Interrupted, interruption, signals_deferred, sigterm_exits
+from panel_rig.processes import (
+    Interrupted,
+    StopRequest,
+    interruption,
+    signals_deferred,
+    signals_set,
+    sigterm_exits,
+)
 
 NAMESPACE = "/rig"
 
@@ -216,49 +224,52 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             if viz is not None:
                 viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
 
-    res, stopped = FlutterTestResult(), None
-    measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
-    try:
-        # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
-        # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
-        with sigterm_exits():
-            run_procedure(measure, bands, settings, on_point, res,
-                          on_flutter=None if progress is None else
-                          lambda u: progress(flutter_line(len(res.points) + 1, u)))
-    except (KeyboardInterrupt, SystemExit) as exc:
-        stopped = interruption(exc)
-        if stopped is None:
-            raise
-        # a dwell recorded whole is a point of the test, though the stop cut its analysis or its recording
-        with signals_deferred():
-            if take_late_point(res, measure.last, bands, settings) or len(history) < len(res.points):
-                interrupted_result(res, settings, stopped.name)
-                on_point(res.points[-1], res.decisions[-1])
-    finally:
-        with signals_deferred():  # a second Ctrl-C waits until the recording is closed
-            rig.command_airspeed(0.0)
-            for s in sinks:
-                if hasattr(s, "flush_blocks"):
-                    s.flush_blocks()
-            if writer is not None:
-                writer.close()
-            if viz is not None:
-                viz.close()
-    if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
-        interrupted_result(res, settings, stopped.name)
-    res.bag = str(writer.bag_dir) if writer is not None else None
-    out = res.as_dict()
-    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
-               dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
-               wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
-    if plot is not None and (stopped is None or res.points):
-        from panel_rig.analysis.plots import plot_flutter_test
+    with contextlib.ExitStack() as after_stop:
+        res, stopped = FlutterTestResult(), None
+        measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
+        try:
+            # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
+            # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
+            with sigterm_exits():
+                run_procedure(measure, bands, settings, on_point, res,
+                              on_flutter=None if progress is None else
+                              lambda u: progress(flutter_line(len(res.points) + 1, u)))
+        except (KeyboardInterrupt, SystemExit) as exc:
+            stopped = interruption(exc)
+            if stopped is None:
+                raise
+            # from here a second Ctrl-C (or a SIGTERM after it) only sets a flag nobody reads: it lost the whole report
+            after_stop.enter_context(signals_set(StopRequest()))
+            # a dwell recorded whole is a point of the test, though the stop cut its analysis or its recording
+            with signals_deferred():
+                if take_late_point(res, measure.last, bands, settings) or len(history) < len(res.points):
+                    interrupted_result(res, settings, stopped.name)
+                    on_point(res.points[-1], res.decisions[-1])
+        finally:
+            with signals_deferred():  # a second Ctrl-C waits until the recording is closed
+                rig.command_airspeed(0.0)
+                for s in sinks:
+                    if hasattr(s, "flush_blocks"):
+                        s.flush_blocks()
+                if writer is not None:
+                    writer.close()
+                if viz is not None:
+                    viz.close()
+        if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
+            interrupted_result(res, settings, stopped.name)
+        res.bag = str(writer.bag_dir) if writer is not None else None
+        out = res.as_dict()
+        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
+                   dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
+                   wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
+        if plot is not None and (stopped is None or res.points):
+            from panel_rig.analysis.plots import plot_flutter_test
 
-        out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
-    if stopped is not None:
-        where = "no recording" if res.bag is None else f"recording in {res.bag}"
-        raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
-    return out
+            out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
+        if stopped is not None:
+            where = "no recording" if res.bag is None else f"recording in {res.bag}"
+            raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
+        return out
 
 
 def format_flutter_test(out: dict[str, Any]) -> str:

@@ -429,3 +429,35 @@ def test_a_test_that_flutters_at_its_first_point_says_so(tmp_path, capsys):
     assert d["stop_reason"] == "fluttered at 12.000 m/s"
     assert "point 1: 12.000 m/s: fluttered at 12.000 m/s; stop" in err, err
     assert png.stat().st_size > 0 and d["plot"] == str(png)
+
+
+def test_a_second_ctrl_c_while_a_stopped_test_winds_up_keeps_its_report(tmp_path, capsys, monkeypatch):
+    """Ctrl-C after the first point, then Ctrl-C again while the stopped test closes its recording and draws its
+    plot (an impatient operator): the second one raised KeyboardInterrupt there and the whole report was lost
+    ("panel-rig: interrupted", no table, no plot). Now it is ignored until the report is made."""
+    import json
+    import os
+    import signal
+
+    from panel_rig import flutter_cli
+    from panel_rig.analysis import plots
+    from panel_rig.cli import main
+
+    def interrupt_after(index, point, decision):  # the first Ctrl-C, just after the first point
+        os.kill(os.getpid(), signal.SIGINT)
+        return real_line(index, point, decision)
+
+    def interrupt_while_drawing(*args, **kwargs):  # the second, while the plot is drawn
+        os.kill(os.getpid(), signal.SIGINT)
+        return real_plot(*args, **kwargs)
+
+    real_line, real_plot = flutter_cli.point_line, plots.plot_flutter_test
+    monkeypatch.setattr(flutter_cli, "point_line", interrupt_after)
+    monkeypatch.setattr(plots, "plot_flutter_test", interrupt_while_drawing)
+    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
+                 "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert code == 130 and out["interrupted"] is True, captured.err
+    assert len(out["test_points"]) == 1 and out["stop_reason"].startswith("interrupted by SIGINT after 1 test")
+    assert (tmp_path / "vg.png").stat().st_size > 0

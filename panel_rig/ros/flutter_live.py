@@ -129,47 +129,48 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
             progress(flutter_line(len(drive.res.points) + 1, airspeed_mps))
 
     stopped = None
-    try:
-        # a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between rclpy
-        # calls (raised inside rclpy's conversion of a taken sample it became a RuntimeError): the wind off, the
-        # node stopped, the points so far reported
-        stop_request = StopRequest()
-        with signals_set(stop_request):
+    # a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between rclpy
+    # calls (raised inside rclpy's conversion of a taken sample it became a RuntimeError): the wind off, the node
+    # stopped, the points so far reported. The flag stays the only effect until the report is made: a second Ctrl-C
+    # (or a SIGTERM after it) during the wind-off, the node's stop or the plot lost the whole report
+    stop_request = StopRequest()
+    with signals_set(stop_request):
+        try:
             _drive(node, did, settings, startup_s, drive, on_point, stop_request, on_flutter)
-    except RigGone as exc:
-        raise RigGone(f"{exc} (node log: {log_path})") from None
-    except (KeyboardInterrupt, SystemExit) as exc:
-        stopped = interruption(exc)
-        if stopped is None:
-            raise
-    finally:
-        code = stop(node, STOP_WAIT_S)
-    res = drive.res
-    if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
-        take_late_result(res, drive.results)
-        interrupted_result(res, settings, stopped.name)
-    bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
-    res.bag = str(bags[-1]) if bags and bag_dir is not None else None
-    out = res.as_dict()
-    results = drive.results
-    last = results[-1] if results else {}
-    sim = float(last.get("sim_time_s", float("nan")))
-    out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=True,
-               dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
-               wall_s=time.monotonic() - t0, node_startup_wall_s=drive.startup_s,
-               test_wall_s=drive.test_s, node_rtf=sim / drive.test_s if drive.test_s > 0 else None,
-               node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
-               node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
-               monitor_times_s=[float(r["sim_time_s"]) for r in results],
-               identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
-    if plot is not None and (stopped is None or res.points):
-        from panel_rig.analysis.plots import plot_flutter_test
+        except RigGone as exc:
+            raise RigGone(f"{exc} (node log: {log_path})") from None
+        except (KeyboardInterrupt, SystemExit) as exc:
+            stopped = interruption(exc)
+            if stopped is None:
+                raise
+        finally:
+            code = stop(node, STOP_WAIT_S)
+        res = drive.res
+        if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
+            take_late_result(res, drive.results)
+            interrupted_result(res, settings, stopped.name)
+        bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
+        res.bag = str(bags[-1]) if bags and bag_dir is not None else None
+        out = res.as_dict()
+        results = drive.results
+        last = results[-1] if results else {}
+        sim = float(last.get("sim_time_s", float("nan")))
+        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=True,
+                   dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
+                   wall_s=time.monotonic() - t0, node_startup_wall_s=drive.startup_s,
+                   test_wall_s=drive.test_s, node_rtf=sim / drive.test_s if drive.test_s > 0 else None,
+                   node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
+                   node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
+                   monitor_times_s=[float(r["sim_time_s"]) for r in results],
+                   identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
+        if plot is not None and (stopped is None or res.points):
+            from panel_rig.analysis.plots import plot_flutter_test
 
-        out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
-    if stopped is not None:
-        where = f"recording and node log in {run_dir}"
-        raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
-    return out
+            out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
+        if stopped is not None:
+            where = f"recording and node log in {run_dir}"
+            raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
+        return out
 
 
 def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> None:
