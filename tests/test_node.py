@@ -317,6 +317,26 @@ def test_rejections_on_different_topics_are_each_logged(fast_node: subprocess.Po
     raise AssertionError(f"no round of three rejected commands gave three warnings: {[m.msg for m in client.got['rosout']]}")
 
 
+def test_rejections_held_back_by_the_throttle_are_summed_up(fast_node: subprocess.Popen, client: Client) -> None:
+    """Three bad airspeeds back to back: the per-topic throttle logged the first and dropped the other two, so
+    their reasons were never in the log (a user counted 18 rejections and 4 warnings). The held ones are now
+    summed up in one warning with the last one's reason, at the next diagnostics period."""
+    def summed_up() -> bool:
+        return any("more command(s) on airspeed_cmd rejected" in m.msg and "the last: airspeed_cmd -1.5 rejected"
+                   in m.msg for m in client.got["rosout"])
+
+    for _ in range(4):  # rounds: only a stall of REJECTION_LOG_S between the node taking two of them logs each one
+        client.got["rosout"].clear()
+        for value in (77.0, 88.0, -1.5):
+            client.publish("airspeed_cmd", value)
+        try:
+            client.wait(summed_up, 5.0, "the summary of the held-back warnings")
+            return
+        except AssertionError:
+            continue
+    raise AssertionError(f"no summary of held-back warnings: {[m.msg for m in client.got['rosout']]}")
+
+
 def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -> None:
     reset(client)
     client.publish("airspeed_cmd", 6.0)

@@ -149,6 +149,7 @@ class RigNode(Node):
         self._diag_rejected = 0
         self._diag_record_errors = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
+        self._rejection_held: dict[str, tuple[int, str]] = {}  # topic -> (warnings held back, the last one)
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
         if not self.fast:
             self.publication.stamp_offset_ns = self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
@@ -422,11 +423,26 @@ class RigNode(Node):
 
     def _warn_rejected(self, topic: str, text: str) -> None:
         """One warning per rejected command, at most one per topic every REJECTION_LOG_S (wall): rclpy's own
-        throttle is per call site, so a rejected airspeed hid a rejected force sent just after it."""
+        throttle is per call site, so a rejected airspeed hid a rejected force sent just after it. The warnings
+        held back are summed up by :meth:`_log_held_rejections` (a burst's later reasons were never logged)."""
         now = time.monotonic()
         if now - self._rejection_logged.get(topic, -math.inf) >= REJECTION_LOG_S:
+            self._log_held_rejections(topic)
             self._rejection_logged[topic] = now
             self.get_logger().warning(text)
+        else:
+            held, _ = self._rejection_held.get(topic, (0, ""))
+            self._rejection_held[topic] = (held + 1, text)
+
+    def _log_held_rejections(self, topic: str | None = None) -> None:
+        """One warning per topic (all topics: None) for the rejections its throttle held back, with the last one's
+        reason; called before the topic's next warning and at each diagnostics period."""
+        for name in [topic] if topic is not None else list(self._rejection_held):
+            held = self._rejection_held.pop(name, None)
+            if held is not None:
+                n, last = held
+                self.get_logger().warning(f"{n} more command(s) on {name} rejected (warnings at most every "
+                                          f"{REJECTION_LOG_S:g} s per topic); the last: {last}")
 
     def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
         """Every command received goes into the recording: on its own topic if the rig took it, else on
@@ -507,6 +523,7 @@ class RigNode(Node):
 
     def publish_diagnostics(self) -> None:
         """State, real-time factor (last window), overruns, rejected commands, last rejection."""
+        self._log_held_rejections()
         now = time.monotonic()
         rig, recording = self.rig, self.recording
         rtf = (rig.time_s - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
