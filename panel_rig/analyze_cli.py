@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -21,16 +22,28 @@ ANALYZE_PROG = "panel-rig analyze"
 FLUTTER_TEST_PLOT = "flutter_test_vg.png"  # with --plots, when the replay identified a test point
 
 
-def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None) -> dict[str, Any]:
-    """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`.
+def _bag_size_mb(bag_dir: Path) -> float:
+    return sum(f.stat().st_size for f in bag_dir.glob("*.mcap") if f.is_file()) / 1e6 if bag_dir.is_dir() else 0.0
+
+
+def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`. ``progress``: called with
+    a line at each stage (a long recording takes ~0.2 s a MB to check and read).
 
     Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
 
     from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
     from panel_rig.recording.series import load_series
 
+    say = progress if progress is not None else (lambda line: None)
     crit = criteria if criteria is not None else Criteria()
+    t0 = time.monotonic()
+    say(f"checking and reading {bag_dir} ({_bag_size_mb(Path(bag_dir)):.0f} MB)")
     rec = load_series(Path(bag_dir), shapes=rerun_path is not None)
+    span = f"{rec.t_s[-1] - rec.t_s[0]:.1f} s" if rec.t_s.size else "no time"
+    say(f"read {rec.t_s.size} readings ({span}) in {time.monotonic() - t0:.1f} s; finding the plateaus and the "
+        "flutter-test points")
     core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
@@ -39,10 +52,14 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     }
     replay = _replay(rec)
     result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
+    if plots_dir is not None:
+        say(f"writing the plots to {plots_dir}")
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result,
                                    rec.commands) if plots_dir is not None else [])
     if plots_dir is not None and replay is not None and replay.points:
         result["plots"].append(_plot_replay(replay, Path(plots_dir) / FLUTTER_TEST_PLOT))
+    if rerun_path is not None:
+        say(f"writing the Rerun recording {rerun_path}")
     result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
                        else None)
     return result
@@ -276,7 +293,10 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
         return 2
     try:
-        result = analyze_bag(args.bag, args.plots, args.rerun)
+        # stage lines on a terminal (a long bag was minutes of silence); a log or a pipe keeps one line per error
+        result = analyze_bag(args.bag, args.plots, args.rerun, progress=(
+            (lambda line: print(f"{ANALYZE_PROG}: {line}", file=sys.stderr, flush=True)) if sys.stderr.isatty()
+            else None))
     except RecordingError as exc:
         print(f"{ANALYZE_PROG}: {exc}", file=sys.stderr)
         return 2
