@@ -553,6 +553,8 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         raise UsageError("--max-points must be >= 1")
     if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
         raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
+    if args.domain_id is not None and args.in_process:  # accepted and silently meaningless before
+        raise UsageError("--domain-id applies to the live node, not with --in-process")
     if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
         raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
     # where the results go is checked before the test runs, not after (a failed plot lost the whole run; the

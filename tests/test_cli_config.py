@@ -65,6 +65,7 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--control", "--rate-hz", "0"], "--rate-hz"),  # was a ZeroDivisionError traceback
     (["flutter", "--control", "--plot", "/proc/no_such_dir/x.png"], "/proc/no_such_dir"),  # any OSError: one line
     (["flutter-test", "--domain-id", "300"], "--domain-id"),  # was an RTPS error on stdout
+    (["flutter-test", "--in-process", "--domain-id", "5"], "not with --in-process"),  # was silently ignored
     # rcl's argument errors were tracebacks (from remove_ros_args or the node's creation)
     (["run", "--ros-args", "--params-file", "/no/such/file.yaml"], "Couldn't parse params file"),
     (["run", "--fast", "--ros-args", "-p", "publish_rate_hz"], "quote it"),

@@ -182,6 +182,13 @@ def test_airspeed_follows_command_with_lag():
     assert sink.readings[-1] is r
 
 
+def test_negative_zero_airspeed_is_zero():
+    """-0.0 passes the airspeed check (it equals 0); taken as it came it showed as "-0.0000" in /diagnostics."""
+    rig, _, _ = make_rig()
+    assert rig.command_airspeed(-0.0).accepted
+    assert math.copysign(1.0, rig.actuator.setpoint_mps) == 1.0
+
+
 def test_shaker_drives_model_and_reading_is_consistent():
     rig, st, _ = make_rig()
     assert rig.command_amplitude(2.0).accepted

@@ -335,7 +335,7 @@ class Rig:
     def command_airspeed(self, airspeed_mps: float) -> CommandResult:
         """Tunnel set-point (m/s); the actuator follows it with its lag."""
         def apply() -> None:
-            self.actuator.setpoint_mps = float(airspeed_mps)
+            self.actuator.setpoint_mps = float(airspeed_mps) + 0.0  # -0.0 is 0 (it showed as "-0.0000")
         return self._command("airspeed_cmd", airspeed_mps, lambda: check_airspeed(airspeed_mps, self.limits), apply)
 
     def command_force(self, force_npm: float) -> CommandResult:
