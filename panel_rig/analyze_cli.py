@@ -49,6 +49,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
         "refused_commands": rec.refused_commands, **core,
+        "aborts": [{"time_s": t, "reason": reason} for t, reason in rec.aborts],
     }
     replay = _replay(rec)
     result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
@@ -222,6 +223,8 @@ def format_table(result: dict[str, Any]) -> str:
     if refused:
         lines.append("commands the rig refused (left out): "
                      + ", ".join(f"{topic} {count}" for topic, count in sorted(refused.items())))
+    for a in result.get("aborts") or []:  # a run that ended in an abort showed only its plateaus
+        lines.append(f"rig aborted at t = {a['time_s']:.3f} s (rig time): {a['reason']}")
     gaps = result.get("gaps") or []
     if gaps:
         lines.append("gaps in the recording (data lost, e.g. a chunk a recovery dropped; no plateau spans one): "

@@ -2,3 +2,7 @@
 
 #: a command the rig refused is echoed live and recorded on ``<command topic>/rejected``
 REJECTED_SUFFIX = "/rejected"
+
+#: the rig's status on /diagnostics (diagnostic_updater's "<node>: <task>" form); its hardware_id is the rig node's
+#: namespace. Its values include the aborts: ``aborts`` (count), ``abort_reason``, ``last_abort_time_s`` (rig time)
+RIG_STATUS_NAME = "panel_rig: tunnel"

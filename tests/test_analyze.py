@@ -12,6 +12,7 @@ import sys
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -78,9 +79,12 @@ def _synthetic_series() -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[
     return t, w, u, cmds
 
 
-def _write_synthetic(bag_dir: Path) -> None:
+def _write_synthetic(bag_dir: Path, extra: Any = None) -> None:
+    """The synthetic run's bag; ``extra(writer)`` writes more messages into it before it is closed."""
     t, w, u, cmds = _synthetic_series()
     with BagWriter(bag_dir) as writer:
+        if extra is not None:
+            extra(writer)
         writer.write_parameters({"panel.length_m": LENGTH_M, "variant": "synthetic"})
         queue = sorted(cmds)
         for ti, wi, ui in zip(t, w, u):
@@ -736,3 +740,28 @@ def test_analyze_on_a_terminal_shows_its_stages(tmp_path: Path) -> None:
     piped = subprocess.run([sys.executable, "-m", "panel_rig.cli", "analyze", str(REFERENCE)], capture_output=True,
                            text=True, timeout=120)
     assert piped.returncode == 0 and piped.stderr == ""
+
+
+def test_analyze_names_the_aborts_the_bag_recorded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A run that ended in an abort showed only its plateaus: the abort was in the recorded /diagnostics but not in
+    the analysis. Each abort (a new last_abort_time_s) is now named with its time and reason, once."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from panel_rig.ros.messages import diagnostics_msg
+
+    reason = "tip |w/L| = 0.9304 exceeds the limit 0.92593"
+
+    def diagnostics(writer: BagWriter) -> None:
+        for t_s, aborts, last in [(1.0, 0, ""), (20.0, 1, "12.5"), (21.0, 1, "12.5"), (30.0, 2, "29.0")]:
+            values = {"state": "aborted" if aborts else "running", "aborts": aborts, "last_abort_time_s": last,
+                      "abort_reason": reason if aborts else ""}
+            writer.write("/diagnostics", diagnostics_msg(int(t_s * 1e9), DiagnosticStatus.OK, "", values, "/rig"),
+                         int(t_s * 1e9))
+
+    _write_synthetic(tmp_path / "aborted", extra=diagnostics)
+    res = analyze_bag(tmp_path / "aborted")
+    assert res["aborts"] == [{"time_s": 12.5, "reason": reason}, {"time_s": 29.0, "reason": reason}]
+    assert main([str(tmp_path / "aborted")]) == 0
+    assert f"rig aborted at t = 12.500 s (rig time): {reason}" in capsys.readouterr().out
+    _write_synthetic(tmp_path / "plain")
+    assert analyze_bag(tmp_path / "plain")["aborts"] == []  # no /diagnostics recorded (the in-process rig's bags)

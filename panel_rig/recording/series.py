@@ -22,7 +22,7 @@ from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import read_metadata
 from panel_rig.recording.reader import read_bag, read_metadata_records, summary_counts, verify_bag
 from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
-from panel_rig.topics import REJECTED_SUFFIX
+from panel_rig.topics import REJECTED_SUFFIX, RIG_STATUS_NAME
 
 
 @dataclass
@@ -43,6 +43,9 @@ class BagSeries:
     #: commands the rig refused, per command topic: recorded on ``<topic>/rejected`` (left out of ``commands``),
     #: and, in bags from before that, non-finite values found on the command topics themselves (always refused)
     refused_commands: dict[str, int] = field(default_factory=dict)
+    #: the rig's aborts its recorded /diagnostics show: (rig time s, reason), one per abort seen in a diagnostics
+    #: period (``aborts`` counts them all); none in a bag without the node's diagnostics (the in-process rig's)
+    aborts: list[tuple[float, str]] = field(default_factory=list)
 
     @property
     def dt_s(self) -> float:
@@ -67,7 +70,8 @@ def _parameters(bag_dir: Path, mcap_path: Path) -> dict[str, Any]:
 
 def _topics(names: list[str]) -> dict[str, str]:
     """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
-    wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", *SHAKER_TOPICS)
+    wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", "diagnostics",
+              *SHAKER_TOPICS)
     out: dict[str, str] = {}
     for suffix in wanted:
         match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
@@ -115,6 +119,7 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     modal = _ModalRows()
     commands: dict[str, list[tuple[float, float]]] = {}
     shape_list: list[tuple[float, np.ndarray, np.ndarray]] = []
+    aborts: list[tuple[float, str]] = []
     t0_ns: int | None = None
     for topic, _, stamp_ns, msg in read_bag(bag_dir, topics=list(by_name)):
         if t0_ns is None:  # a real-time run is stamped on the ROS clock: times from its first message
@@ -131,6 +136,8 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
             modal.append(msg.position)
         elif kind == "panel_shape":
             shape_list.append((t, np.array([p.x for p in msg.points]), np.array([p.z for p in msg.points])))
+        elif kind == "diagnostics":
+            _take_aborts(msg, aborts)
         elif math.isfinite(msg.data):
             commands.setdefault(kind, []).append((t, float(msg.data)))
         else:  # a bag from before the /rejected topics: the rig refuses every non-finite command
@@ -145,7 +152,22 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
         q=_modal_on(t_s, modal_t, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
         commands=commands, shapes=shape_list, panel_length_m=length_m,
         length_source="parameters" if ok_length else "default", parameters=params, refused_commands=refused,
+        aborts=aborts,
     )
+
+
+def _take_aborts(msg: Any, aborts: list[tuple[float, str]]) -> None:
+    """The abort a rig status on /diagnostics reports, appended when it is a new one (its time not yet seen)."""
+    for status in msg.status:
+        if status.name != RIG_STATUS_NAME:
+            continue
+        values = {kv.key: kv.value for kv in status.values}
+        try:
+            t_abort = float(values.get("last_abort_time_s") or "nan")
+        except ValueError:
+            continue
+        if math.isfinite(t_abort) and all(t != t_abort for t, _ in aborts):
+            aborts.append((t_abort, values.get("abort_reason", "")))
 
 
 class _ModalRows:

@@ -17,6 +17,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from panel_rig.rig.reading import ReadingBlock
+from panel_rig.topics import RIG_STATUS_NAME
 
 FRAME_ID = "panel_rig"
 
@@ -105,9 +106,8 @@ def shape_msg(
     return m
 
 
-#: the rig's status on /diagnostics (diagnostic_updater's "<node>: <task>" form); its hardware_id is the rig node's
-#: namespace: /diagnostics is global, and a client of one rig took another rig's aborts and set-point as its own
-RIG_STATUS_NAME = "panel_rig: tunnel"
+# RIG_STATUS_NAME (panel_rig.topics): filtered by hardware_id too, since /diagnostics is global, and a client of
+# one rig took another rig's aborts and set-point as its own
 
 
 def diagnostics_msg(stamp_ns: int, level: bytes, message: str, values: Mapping[str, object],

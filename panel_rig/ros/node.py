@@ -149,6 +149,7 @@ class RigNode(Node):
         self._diag_rejected = 0
         self._diag_record_errors = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
+        self._diag_aborts = 0  # the rig's abort count at the last /diagnostics
         self._rejection_held: dict[str, tuple[int, str]] = {}  # topic -> (warnings held back, the last one)
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
         if not self.fast:
@@ -493,6 +494,7 @@ class RigNode(Node):
             self.publication.publish_block(self.rig.advance_samples(counts))
         else:
             self.publication.publish_readings()
+        self._diagnose_new_abort()
         self._last_sample_s = self.rig.time_s
         lag = target - self.rig.time_s
         if lag > self._max_lag_s:
@@ -516,6 +518,13 @@ class RigNode(Node):
         counts = step_counts(self.rig.time_s, targets, self.dt_s)
         self._fast_next_s = start + periods * self._publish_period_s
         self.publication.publish_block(self.rig.advance_samples(counts))
+        self._diagnose_new_abort()
+
+    def _diagnose_new_abort(self) -> None:
+        """/diagnostics at once when the rig has aborted since the last status: at the diagnostics period (wall
+        time) a fast run that aborted and stopped within it recorded no status of the abort at all."""
+        if self.rig.abort_count != self._diag_aborts:
+            self.publish_diagnostics()
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
@@ -526,6 +535,7 @@ class RigNode(Node):
         self._log_held_rejections()
         now = time.monotonic()
         rig, recording = self.rig, self.recording
+        self._diag_aborts = rig.abort_count
         rtf = (rig.time_s - self._diag_sim) / (now - self._diag_wall) if now > self._diag_wall else 0.0
         self._diag_wall, self._diag_sim = now, rig.time_s
         jitter_ms = jitter_p99_ms(self._window_intervals, self._publish_period_s)
