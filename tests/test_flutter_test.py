@@ -256,6 +256,19 @@ def test_an_interrupted_result_takes_the_decision_the_stop_cut_off():
     assert FlutterTestResult().as_dict()["interrupted"] is False
 
 
+def run_thin_test(tmp_path, capsys):
+    """`flutter-test --in-process` of a thin panel (0.4 mm: U_f ~2.3 m/s, short dwells), JSON, bag and plot into
+    ``tmp_path``: (exit status, the JSON, the captured output)."""
+    import json
+
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
+                 "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    return code, json.loads(captured.out), captured
+
+
 def test_cli_flutter_test_stopped_by_sigterm_reports_its_points(tmp_path, capsys, monkeypatch):
     """SIGTERM after the first point of an in-process test: the JSON of the points so far, marked interrupted, the
     plot, and status 143; the line on stderr says how to replay the recording. Before, SIGTERM killed the process
@@ -314,12 +327,10 @@ def test_a_ctrl_c_during_a_dwell_leaves_a_whole_bag_whose_replay_is_the_test_s(t
     reading (the wind-off stamped 68 s after it), and the replay identified the cut dwell as a point the test never
     took. Now the stop waits for the block's end: the bag holds every reading marched, and its replay gives the
     test's one point."""
-    import json
     import os
     import signal
 
     from panel_rig.analyze_cli import analyze_bag
-    from panel_rig.cli import main
     from panel_rig.recording.series import load_series
     from panel_rig.rig.rig import Rig
 
@@ -339,10 +350,7 @@ def test_a_ctrl_c_during_a_dwell_leaves_a_whole_bag_whose_replay_is_the_test_s(t
 
     monkeypatch.setattr(flutter_cli, "point_line", point_line)
     monkeypatch.setattr(Rig, "emit_block", emit_block)
-    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
-                 "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
-    captured = capsys.readouterr()
-    out = json.loads(captured.out)
+    code, out, captured = run_thin_test(tmp_path, capsys)
     assert code == 130 and out["interrupted"] is True and len(out["test_points"]) == 1, captured.err
     rec = load_series(out["bag"])
     assert rec.t_s[-1] == pytest.approx(out["simulated_s"], abs=1e-9)  # nothing marched went unrecorded
@@ -355,13 +363,11 @@ def test_a_ctrl_c_during_a_point_s_identification_still_takes_the_point_its_bag_
     """A stop after the second dwell was recorded whole, while it was being identified: the test reported one point
     where its bag held two complete dwells (the replay found two). The point is now taken as the live client takes
     the node's late result: identified, recorded with its decision, and the replay agrees."""
-    import json
     import os
     import signal
 
     import panel_rig.analysis.flutter_test as procedure
     from panel_rig.analyze_cli import analyze_bag
-    from panel_rig.cli import main
 
     calls: list[int] = []
     real = procedure.identify_point
@@ -373,10 +379,7 @@ def test_a_ctrl_c_during_a_point_s_identification_still_takes_the_point_its_bag_
         return real(*args, **kwargs)
 
     monkeypatch.setattr(procedure, "identify_point", identify_point)
-    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
-                 "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
-    captured = capsys.readouterr()
-    out = json.loads(captured.out)
+    code, out, captured = run_thin_test(tmp_path, capsys)
     assert code == 130 and len(out["test_points"]) == 2 and len(out["monitor_times_s"]) == 2, captured.err
     replay = analyze_bag(out["bag"])["flutter_test"]["test_points"]
     assert [p["damping_ratio"] for p in replay] == pytest.approx([p["damping_ratio"] for p in out["test_points"]],
@@ -435,13 +438,11 @@ def test_a_second_ctrl_c_while_a_stopped_test_winds_up_keeps_its_report(tmp_path
     """Ctrl-C after the first point, then Ctrl-C again while the stopped test closes its recording and draws its
     plot (an impatient operator): the second one raised KeyboardInterrupt there and the whole report was lost
     ("panel-rig: interrupted", no table, no plot). Now it is ignored until the report is made."""
-    import json
     import os
     import signal
 
     from panel_rig import flutter_cli
     from panel_rig.analysis import plots
-    from panel_rig.cli import main
 
     def interrupt_after(index, point, decision):  # the first Ctrl-C, just after the first point
         os.kill(os.getpid(), signal.SIGINT)
@@ -454,10 +455,7 @@ def test_a_second_ctrl_c_while_a_stopped_test_winds_up_keeps_its_report(tmp_path
     real_line, real_plot = flutter_cli.point_line, plots.plot_flutter_test
     monkeypatch.setattr(flutter_cli, "point_line", interrupt_after)
     monkeypatch.setattr(plots, "plot_flutter_test", interrupt_while_drawing)
-    code = main(["flutter-test", "--in-process", "--set", "panel.thickness_m=0.0004", "--dwell", "20",
-                 "--settle", "1", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
-    captured = capsys.readouterr()
-    out = json.loads(captured.out)
+    code, out, captured = run_thin_test(tmp_path, capsys)
     assert code == 130 and out["interrupted"] is True, captured.err
     assert len(out["test_points"]) == 1 and out["stop_reason"].startswith("interrupted by SIGINT after 1 test")
     assert (tmp_path / "vg.png").stat().st_size > 0
