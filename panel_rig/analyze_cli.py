@@ -50,6 +50,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
         "refused_commands": rec.refused_commands, **core,
         "aborts": [{"time_s": t, "reason": reason} for t, reason in rec.aborts],
+        "monitor_flutter": [{"time_s": t, "airspeed_mps": u} for t, u in rec.monitor_flutter],
     }
     replay = _replay(rec)
     result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
@@ -225,6 +226,9 @@ def format_table(result: dict[str, Any]) -> str:
                      + ", ".join(f"{topic} {count}" for topic, count in sorted(refused.items())))
     for a in result.get("aborts") or []:  # a run that ended in an abort showed only its plateaus
         lines.append(f"rig aborted at t = {a['time_s']:.3f} s (rig time): {a['reason']}")
+    for f in result.get("monitor_flutter") or []:  # a plateau cut short by its flutter is often no plateau here
+        lines.append(f"flutter monitor: the panel fluttered at {f['airspeed_mps']:.3f} m/s "
+                     f"(reported at t = {f['time_s']:.3f} s, rig time)")
     gaps = result.get("gaps") or []
     if gaps:
         lines.append("gaps in the recording (data lost, e.g. a chunk a recovery dropped; no plateau spans one): "
@@ -248,8 +252,10 @@ def format_table(result: dict[str, Any]) -> str:
     interpolated = (f"{num(o['interpolated_mps'])} m/s" if o["interpolated_mps"] is not None
                     else "none (needs a measured growth at the bracket's top and a decay at its bottom)")
     if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
+        # (a wind-off plateau is no evidence: "stable up to 0.00 m/s" after a first point that fluttered)
+        low, wind_on_mps = o["bracket_low_mps"], (result.get("criteria") or {}).get("min_extrapolation_airspeed_mps", 0.5)
         lines.append("flutter onset: no plateau was unstable"
-                     + ("" if o["bracket_low_mps"] is None else f" (stable up to {num(o['bracket_low_mps'])} m/s)")
+                     + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
                      + f"; extrapolated from decay rates: {extrapolated}")
     else:
         lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "

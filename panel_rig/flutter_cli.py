@@ -166,7 +166,13 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    settle_s: float | None = None, max_points: int | None = None,
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
-    from panel_rig.analysis.flutter_test import FlutterTestResult, bands_from_model, interrupted_result, run_procedure
+    from panel_rig.analysis.flutter_test import (
+        FlutterTestResult,
+        bands_from_model,
+        flutter_report,
+        interrupted_result,
+        run_procedure,
+    )
     from panel_rig.rig.flutter_run import RigMeasure, pretest_plan, start_problem, start_warning, take_late_point
     from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
     from panel_rig.rig.safety import SafetyLimits
@@ -212,17 +218,31 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         rig.sinks.append(ShapeSink(viz, rig, cfg))
     history: list[tuple[float, Any, Any]] = []
 
+    def record_monitor(point: Any, decision: Any, fluttered: bool = False) -> None:
+        """The monitor's message of a point, as the node records it (with the plateau's sim_time_s)."""
+        if writer is not None:
+            stamp = messages.stamp_ns(rig.time_s)
+            band = bands(point.airspeed_mps)[1]
+            plateau = {"point_index": len(history) + 1, "plateau_start_s": measure.plateau_start_s,
+                       "settle_s": settings.settle_s, "dwell_s": settings.dwell_s, "sim_time_s": rig.time_s,
+                       "flutter_band_low_hz": band[0], "flutter_band_high_hz": band[1]}
+            writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(stamp, point, decision, margin, fluttered=fluttered,
+                                                             plateau=plateau), stamp, qos="reliable")
+
     def on_point(point: Any, decision: Any) -> None:
         with signals_deferred():  # a stop waits until the point is recorded whole
+            record_monitor(point, decision)
             history.append((rig.time_s, point, decision))
             if progress is not None:
                 progress(point_line(len(history), point, decision))
-            if writer is not None:
-                writer.write(f"{NAMESPACE}/{TOPIC}",
-                             monitor_msg(messages.stamp_ns(rig.time_s), point, decision, margin),
-                             messages.stamp_ns(rig.time_s), qos="reliable")
             if viz is not None:
                 viz.log_flutter_point(rig.time_s, [h[1] for h in history], decision, margin)
+
+    def on_flutter(airspeed_mps: float) -> None:
+        with signals_deferred():  # the node's monitor message of a plateau that fluttered, recorded whole
+            record_monitor(*flutter_report(airspeed_mps, res.points, settings), fluttered=True)
+            if progress is not None:
+                progress(flutter_line(len(res.points) + 1, airspeed_mps))
 
     with contextlib.ExitStack() as after_stop:
         res, stopped = FlutterTestResult(), None
@@ -231,9 +251,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
             # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
             with sigterm_exits():
-                run_procedure(measure, bands, settings, on_point, res,
-                              on_flutter=None if progress is None else
-                              lambda u: progress(flutter_line(len(res.points) + 1, u)))
+                run_procedure(measure, bands, settings, on_point, res, on_flutter=on_flutter)
         except (KeyboardInterrupt, SystemExit) as exc:
             stopped = interruption(exc)
             if stopped is None:

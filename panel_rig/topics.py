@@ -6,3 +6,7 @@ REJECTED_SUFFIX = "/rejected"
 #: the rig's status on /diagnostics (diagnostic_updater's "<node>: <task>" form); its hardware_id is the rig node's
 #: namespace. Its values include the aborts: ``aborts`` (count), ``abort_reason``, ``last_abort_time_s`` (rig time)
 RIG_STATUS_NAME = "panel_rig: tunnel"
+
+#: the flutter monitor's results (``diagnostic_msgs/DiagnosticArray``, one per test point; see
+#: :mod:`panel_rig.ros.flutter_monitor`), under the rig's namespace
+FLUTTER_MONITOR_TOPIC = "flutter_monitor"

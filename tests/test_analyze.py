@@ -642,6 +642,10 @@ def test_a_run_without_an_unstable_plateau_reports_no_onset() -> None:
               "plateaus": [plateau], "onset": estimate_onset([plateau])}
     last = format_table(result).splitlines()[-1]
     assert last.startswith("flutter onset: no plateau was unstable (stable up to 6.00 m/s)"), last
+    # the wind-off plateau of a test whose first point fluttered (cut too short to be a plateau) is no evidence
+    wind_off = {**plateau, "airspeed_mps": 0.002, "status": "stationary"}
+    last = format_table({**result, "plateaus": [wind_off], "onset": estimate_onset([wind_off])}).splitlines()[-1]
+    assert last.startswith("flutter onset: no plateau was unstable; extrapolated"), last
 
 
 def test_a_replay_without_a_prediction_says_why_not_none() -> None:

@@ -432,6 +432,15 @@ def test_a_test_that_flutters_at_its_first_point_says_so(tmp_path, capsys):
     assert d["stop_reason"] == "fluttered at 12.000 m/s"
     assert "point 1: 12.000 m/s: fluttered at 12.000 m/s; stop" in err, err
     assert png.stat().st_size > 0 and d["plot"] == str(png)
+    # as the live node's monitor reports the flutter at once and the client winds off: the in-process rig marched
+    # the whole 25 s plateau and recorded no monitor result for it; `analyze` of a live bag, whose plateau the
+    # flutter cut too short to be one, said only "stable up to 0.00 m/s" (its wind-off plateau)
+    assert d["simulated_s"] < 5 + 20 - 1, d["simulated_s"]
+    capsys.readouterr()
+    assert main(["analyze", d["bag"]]) == 0
+    text = capsys.readouterr().out
+    assert "flutter monitor: the panel fluttered at 12.000 m/s (reported at t = " in text, text
+    assert "stable up to 0.00" not in text
 
 
 def test_a_second_ctrl_c_while_a_stopped_test_winds_up_keeps_its_report(tmp_path, capsys, monkeypatch):

@@ -298,6 +298,16 @@ def fluttered_reason(airspeed_mps: float) -> str:
     return f"fluttered at {airspeed_mps:.3f} m/s"
 
 
+def flutter_report(airspeed_mps: float, points: Sequence[TestPoint], settings: FlutterTestSettings
+                   ) -> tuple[TestPoint, Decision]:
+    """The result of a plateau that fluttered, as the monitor publishes it: a point without modes (method
+    "fluttered") and a stop whose reason says where, carrying the predictors of the points before it."""
+    last = decide(points, settings) if points else None
+    return (TestPoint(float(airspeed_mps), None, None, "fluttered"),
+            Decision(None, fluttered_reason(airspeed_mps), last.trend if last else None, last.zw if last else None,
+                     last.prediction if last else None))
+
+
 def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, signal_name: str
                        ) -> FlutterTestResult:
     """``res`` of a test stopped by ``signal_name`` part-way: the points identified so far with the decision (and

@@ -22,6 +22,7 @@ from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.metadata import read_metadata
 from panel_rig.recording.reader import read_bag, read_metadata_records, summary_counts, verify_bag
 from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
+from panel_rig.topics import FLUTTER_MONITOR_TOPIC as MONITOR_TOPIC
 from panel_rig.topics import REJECTED_SUFFIX, RIG_STATUS_NAME
 
 
@@ -46,6 +47,10 @@ class BagSeries:
     #: the rig's aborts its recorded /diagnostics show: (rig time s, reason), one per abort seen in a diagnostics
     #: period (``aborts`` counts them all); none in a bag without the node's diagnostics (the in-process rig's)
     aborts: list[tuple[float, str]] = field(default_factory=list)
+    #: the plateaus the flutter monitor reported fluttered (its recorded ``flutter_monitor`` results marked so):
+    #: (rig time s of the report, commanded airspeed m/s); a plateau cut short by its flutter is often too short to
+    #: be a plateau of the analysis
+    monitor_flutter: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def dt_s(self) -> float:
@@ -71,7 +76,7 @@ def _parameters(bag_dir: Path, mcap_path: Path) -> dict[str, Any]:
 def _topics(names: list[str]) -> dict[str, str]:
     """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
     wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", "diagnostics",
-              *SHAKER_TOPICS)
+              MONITOR_TOPIC, *SHAKER_TOPICS)
     out: dict[str, str] = {}
     for suffix in wanted:
         match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
@@ -120,6 +125,7 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     commands: dict[str, list[tuple[float, float]]] = {}
     shape_list: list[tuple[float, np.ndarray, np.ndarray]] = []
     aborts: list[tuple[float, str]] = []
+    monitor_flutter: list[tuple[float, float]] = []
     t0_ns: int | None = None
     for topic, _, stamp_ns, msg in read_bag(bag_dir, topics=list(by_name)):
         if t0_ns is None:  # a real-time run is stamped on the ROS clock: times from its first message
@@ -138,6 +144,8 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
             shape_list.append((t, np.array([p.x for p in msg.points]), np.array([p.z for p in msg.points])))
         elif kind == "diagnostics":
             _take_aborts(msg, aborts)
+        elif kind == MONITOR_TOPIC:
+            _take_monitor_flutter(msg, t, monitor_flutter)
         elif math.isfinite(msg.data):
             commands.setdefault(kind, []).append((t, float(msg.data)))
         else:  # a bag from before the /rejected topics: the rig refuses every non-finite command
@@ -152,7 +160,7 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
         q=_modal_on(t_s, modal_t, modal), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
         commands=commands, shapes=shape_list, panel_length_m=length_m,
         length_source="parameters" if ok_length else "default", parameters=params, refused_commands=refused,
-        aborts=aborts,
+        aborts=aborts, monitor_flutter=monitor_flutter,
     )
 
 
@@ -168,6 +176,20 @@ def _take_aborts(msg: Any, aborts: list[tuple[float, str]]) -> None:
             continue
         if math.isfinite(t_abort) and all(t != t_abort for t, _ in aborts):
             aborts.append((t_abort, values.get("abort_reason", "")))
+
+
+def _take_monitor_flutter(msg: Any, t_s: float, out: list[tuple[float, float]]) -> None:
+    """A flutter-monitor result marked fluttered: (its sim_time_s, else the message time ``t_s``; airspeed m/s)."""
+    for status in msg.status:
+        values = {kv.key: kv.value for kv in status.values}
+        if values.get("fluttered") != "true":
+            continue
+        try:
+            u, t = float(values.get("airspeed_mps", "nan")), float(values.get("sim_time_s", "nan"))
+        except ValueError:
+            continue
+        if math.isfinite(u):
+            out.append((t if math.isfinite(t) else t_s, u))
 
 
 class _ModalRows:

@@ -18,6 +18,7 @@ from panel_rig.analysis.flutter_test import (
     TestPoint,
     bands_from_model,
     decide,
+    flutter_report,
     identify_point,
     resample_window,
     run_procedure,
@@ -59,7 +60,9 @@ class RigMeasure:
     The run-in and the dwell are marched and handed to the rig's sinks in blocks of ``EMIT_BLOCK_S``, each inside
     ``atomic()`` (e.g. :func:`panel_rig.processes.signals_deferred`: a stop waits for the block's end). ``last``
     is the newest completed dwell, set with its last block: a test stopped after it but before its point was taken
-    can still take it (as the live client takes the node's late result)."""
+    can still take it (as the live client takes the node's late result). A plateau that flutters (:func:`fluttered`
+    in a block, run-in included) is marched no further, as the node's monitor reports it at once and the client
+    winds the tunnel off: ``flutter_time_s`` is the rig's time at the end of that block."""
 
     def __init__(self, rig: Rig, settings: FlutterTestSettings, steps_per_sample: int = 4,
                  atomic: Callable[[], ContextManager[Any]] = nullcontext) -> None:
@@ -68,10 +71,13 @@ class RigMeasure:
         self.per_block = max(1, int(round(EMIT_BLOCK_S / self.dt_s)))
         self.last: Dwell | None = None
         self._newest = np.zeros(0)  # the newest sample marched so far (none before the first point)
+        self.flutter_time_s: float | None = None
+        self.plateau_start_s = 0.0  # the rig's time at the newest airspeed command (s)
 
     def _march(self, n_samples: int, done: Callable[[np.ndarray], None] | None = None) -> np.ndarray:
         """March n samples in blocks, each handed to the sinks (bag, viewer) as the node publishes its blocks;
-        ``done(all samples)`` runs inside the last block's ``atomic()``."""
+        ``done(all samples)`` runs inside the last block's ``atomic()``. Stops after a block that fluttered
+        (``flutter_time_s`` set; ``done`` not called)."""
         tips = [np.zeros(0)]
         if n_samples <= 0 and done is not None:
             with self.atomic():
@@ -81,6 +87,9 @@ class RigMeasure:
                 blk = self.rig.advance_samples([self.steps_per_sample] * min(self.per_block, n_samples - start))
                 self.rig.emit_block(blk)
                 tips.append(np.asarray(blk.tip_w_m, dtype=float))
+                if fluttered(tips[-1], self.rig.panel_length_m, self.rig.state != RUNNING):
+                    self.flutter_time_s = self.rig.time_s
+                    break
                 if done is not None and start + self.per_block >= n_samples:
                     done(np.concatenate(tips))
         return np.concatenate(tips)
@@ -89,7 +98,10 @@ class RigMeasure:
         result = self.rig.command_airspeed(u)
         if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
             raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
+        self.flutter_time_s, self.plateau_start_s = None, self.rig.time_s
         settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
+        if self.flutter_time_s is not None:
+            return settle, self.dt_s, None, True
         before = np.concatenate([self._newest, settle])
 
         def dwell_done(dwell: np.ndarray) -> None:
@@ -100,7 +112,9 @@ class RigMeasure:
                               fluttered(np.concatenate([settle, dwell]), self.rig.panel_length_m,
                                         self.rig.state != RUNNING))
 
-        self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
+        dwell = self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
+        if self.flutter_time_s is not None:
+            return dwell, self.dt_s, None, True
         last = self.last
         return last.window_m, last.dt_s, None, last.fluttered
 
@@ -253,10 +267,7 @@ class FlutterMonitorSink:
 
     def _report_flutter(self, time_s: float) -> None:
         self._t, self._y = [], []
-        pt = TestPoint(float(self._u), None, None, "fluttered")
-        last = decide(self.points, self.settings) if self.points else None
-        d = Decision(None, f"fluttered at {self._u:.3f} m/s", last.trend if last else None,
-                     last.zw if last else None, last.prediction if last else None)
+        pt, d = flutter_report(self._u, self.points, self.settings)
         self.waiting = True
         self.published += 1
         self.publish(time_s, pt, d, fluttered=True)

@@ -25,8 +25,9 @@ from typing import Any
 from panel_rig.analysis.flutter_test import Decision, TestPoint
 from panel_rig.analysis.identification import ModalEstimate
 from panel_rig.ros import messages
+from panel_rig.topics import FLUTTER_MONITOR_TOPIC
 
-TOPIC = "flutter_monitor"
+TOPIC = FLUTTER_MONITOR_TOPIC
 STATUS_NAME = "panel_rig: flutter monitor"
 _ESTIMATE = ("frequency_se_hz", "damping_se", "dof", "estimator", "n_stable")
 
