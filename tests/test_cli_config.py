@@ -206,6 +206,18 @@ def test_the_node_refuses_an_airspeed_limit_beyond_the_incompressible_lattice():
     assert len(problems) == 1 and problems[0].startswith("safety.max_airspeed_mps"), problems
 
 
+def test_the_node_and_the_cli_take_the_same_flutter_test_margins():
+    """The node took flutter_test.margin 1.0 (a margin no prediction can meet), which flutter-test --margin refuses:
+    both take (0, 1) now."""
+    from panel_rig.ros.params import check_node_params
+
+    assert check_node_params({"flutter_test.margin": 0.999}) == []
+    for margin in (1.0, 0.0):
+        problems = check_node_params({"flutter_test.margin": margin})
+        assert len(problems) == 1 and "must lie in (0, 1)" in problems[0], problems
+    assert run("flutter-test", "--in-process", "--margin", "1").returncode == 2
+
+
 def test_default_file_is_the_paper():
     c = load_config()
     assert (c.panel_length_m, c.panel_thickness_m, c.airfoil_length_m) == (0.27, 0.00036, 0.072)

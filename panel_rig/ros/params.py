@@ -32,7 +32,8 @@ _RERUN = re.compile(r"^(none|save:.+|connect:.*)$")
 @dataclass(frozen=True)
 class NodeParam:
     """A node parameter: default (also its type), whether it may change live, a check returning a reason,
-    and numeric bounds ``lo``/``hi`` (closed ends, published as the descriptor's range; None: unbounded)."""
+    and numeric bounds ``lo``/``hi`` (published as the descriptor's range, which has closed ends: an open end is
+    the check's; None: unbounded)."""
 
     default: Any
     live: bool
@@ -42,8 +43,9 @@ class NodeParam:
     hi: float | None = None
 
 
-def _number(default: float, live: bool, description: str, lo: float, hi: float, lo_open: bool = False) -> NodeParam:
-    ok, rule = interval_rule(lo, hi, lo_open)
+def _number(default: float, live: bool, description: str, lo: float, hi: float, lo_open: bool = False,
+            hi_open: bool = False) -> NodeParam:
+    ok, rule = interval_rule(lo, hi, lo_open, hi_open)
 
     def check(v: Any) -> str | None:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -124,8 +126,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                      "simulated s", 0.0, MAX_SETTLE_S),
     "flutter_test.dwell_s": _number(200.0, False, "flutter monitor: response identified per test point (published "
                                     "as soon as it is complete), simulated s", MIN_DWELL_S, MAX_DWELL_S),
-    "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision", 0.0, 1.0,
-                                   lo_open=True),
+    "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision "
+                                   "(as flutter-test --margin)", 0.0, 1.0, lo_open=True, hi_open=True),
     "fast_wait_for_command": NodeParam(False, False, _bool, "fast mode: simulated time starts with the first "
                                        "command received (an operator's, a controller's), not at start-up"),
     "flutter_test.hold": NodeParam(False, False, _bool, "fast mode: hold simulated time after each published test "
