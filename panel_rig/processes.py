@@ -144,11 +144,15 @@ def stop_exception(stop: StopRequest) -> BaseException:
 
 
 @contextmanager
-def signals_set(stop: threading.Event) -> Iterator[None]:
+def signals_set(stop: threading.Event, restore_when_stopped: bool = True) -> Iterator[None]:
     """Within the block SIGINT and SIGTERM only set ``stop``: the spin loop turns it into a clean exit between
     rclpy calls. (rclpy's own handler shuts the context down under whatever call is running, and Python's raises
     KeyboardInterrupt wherever it lands: inside rclpy's conversion of a taken sample it left the subscription's
-    callback group busy for good.) The previous handlers come back on leaving the block."""
+    callback group busy for good.) The previous handlers come back on leaving the block, unless
+    ``restore_when_stopped`` is false and ``stop`` is set then: a program that was stopped is on its way out, and
+    ignores both signals from there on (a node that had closed its bag ended 130 or 143, killed by the Ctrl-C or
+    SIGTERM an impatient operator sent again, in the moments between its ROS session and its exit; an ignored
+    signal is the one disposition the interpreter's finalisation leaves in place, it resets Python handlers)."""
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
 
     def handler(signum: int, _frame: object) -> None:
@@ -161,8 +165,9 @@ def signals_set(stop: threading.Event) -> Iterator[None]:
     try:
         yield
     finally:
+        stopping = stop.is_set() and not restore_when_stopped
         for s, handler in previous.items():
-            signal.signal(s, handler)
+            signal.signal(s, signal.SIG_IGN if stopping else handler)
 
 
 def stop(proc: subprocess.Popen, timeout_s: float) -> int:

@@ -29,3 +29,31 @@ def test_a_sigterm_inside_a_deferred_block_leaves_through_the_handler_before_it(
             done.append("the rest of the block")
     assert done == ["the rest of the block"] and stopped.value.code == TERMINATED_STATUS
 
+
+
+def test_a_stopped_ros_program_keeps_taking_signals_as_stop_requests_until_it_exits():
+    """A node stopped by Ctrl-C, then sent a SIGTERM after its ROS session had ended (closing its bag and shutting
+    rclpy down take moments in which an operator presses again): the restored default handler killed it, status
+    143, though it had stopped cleanly. Now a stopped session leaves both signals ignored (the interpreter's
+    finalisation resets a Python handler, not an ignored signal); one that was not stopped gives the handlers back."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("rclpy")
+    script = (
+        "import os, signal, sys\n"
+        "from panel_rig.processes import StopRequest\n"
+        "from panel_rig.ros.session import ros_session\n"
+        "before = signal.getsignal(signal.SIGTERM)\n"
+        "with ros_session([], StopRequest()):\n"
+        "    pass\n"
+        "assert signal.getsignal(signal.SIGTERM) is before, 'a session not stopped keeps its handlers'\n"
+        "with ros_session([], StopRequest()):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN is signal.getsignal(signal.SIGINT)\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "print('exited on its own')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "exited on its own" in out.stdout, (out.returncode, out.stderr[-2000:])

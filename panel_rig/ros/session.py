@@ -18,8 +18,9 @@ from panel_rig.processes import follow_parent, signals_set
 @contextmanager
 def ros_session(args: Sequence[str], stop: threading.Event) -> Iterator[None]:
     """``rclpy.init(args)`` for the block; a signal sets ``stop`` (the program's spin loop ends between rclpy calls);
-    the context is shut down on leaving (the program destroys its node before), then the previous handlers return."""
-    with signals_set(stop):
+    the context is shut down on leaving (the program destroys its node before), then the previous handlers return,
+    unless ``stop`` is set: the program is stopping, and ignores further signals until it exits."""
+    with signals_set(stop, restore_when_stopped=False):
         follow_parent()  # a child of a one-command session stops with it (its SIGTERM sets ``stop``)
         rclpy.init(args=list(args), signal_handler_options=SignalHandlerOptions.NO)
         try:
