@@ -268,10 +268,27 @@ def cluster():
     """One LocalCluster for the in-process runs (2 worker processes, 1 thread each, no dashboard)."""
     from dask.distributed import LocalCluster
 
-    c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                     silence_logs=logging.ERROR)
-    yield c.scheduler_address
-    c.close()
+    from panel_rig.studies.runner import environ_kept
+
+    with environ_kept():  # its nannies set their workers' variables in this process's environment
+        c = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                         silence_logs=logging.ERROR)
+        yield c.scheduler_address
+        c.close()
+
+
+def test_a_study_cluster_leaves_the_process_environment_as_it_was():
+    """Each nanny of the study's LocalCluster set its workers' OPENBLAS_NUM_THREADS=1 (and friends) and
+    MALLOC_TRIM_THRESHOLD_ in this process's environment, and they stayed: every later child of the process (a node,
+    an external `dask worker`) inherited them; a test of external workers passed only after such a study."""
+    import os
+
+    from panel_rig.studies.runner import connect
+
+    before = dict(os.environ)
+    with connect(workers=1) as client:
+        assert client.submit(os.environ.get, "OPENBLAS_NUM_THREADS", pure=False).result() == "1"  # the worker's
+    assert dict(os.environ) == before
 
 
 @pytest.fixture(scope="module")
