@@ -581,6 +581,20 @@ def test_a_decay_is_measured_after_a_tap_or_along_a_line() -> None:
     assert estimate_onset([p(8.0, "stationary", 0, -0.125), p(11.0, "growing", 20, 0.5)])["bracket_low_mps"] == 8.0
 
 
+def test_a_free_decay_with_the_wind_off_is_no_lco() -> None:
+    """After an abort at 12 m/s the panel rang down at 0 m/s from 0.8 L at -0.1 1/s: the irregular-LCO rule (a
+    5 s window, its thirds within 0.5-2 of each other) called that plateau an LCO at 0.00 m/s. With the wind off
+    nothing feeds an oscillation."""
+    from panel_rig.analysis.bag_analysis import analyze_series
+
+    t = np.arange(0.0, 40.0, 1.0 / 500.0)
+    u = np.where(t < 20.0, 12.0, 0.0)
+    w = np.where(t < 20.0, 1e-4 * np.exp(0.4 * t) * np.sin(2 * np.pi * 22.0 * t),
+                 0.8 * np.exp(-0.1 * (t - 20.0)) * np.sin(2 * np.pi * 4.0 * t))
+    statuses = [(round(p["airspeed_mps"]), p["status"]) for p in analyze_series(t, w, u, {})["plateaus"]]
+    assert statuses == [(12, "growing"), (0, "decaying")], statuses
+
+
 def test_instantaneous_airspeed_steps_are_separate_plateaus() -> None:
     """tunnel.time_constant_s = 0 (allowed): the steady windows on both sides of each step joined 5, 6 and 7 m/s
     into one run, of which only the last level survived."""

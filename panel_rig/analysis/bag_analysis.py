@@ -31,7 +31,8 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   tap, or without a tap an envelope falling along a line (R^2 >= ``min_decay_r2``: the random response's
   envelope reached R^2 0.94 in 200 five-second samples); else ``stationary`` (the turbulence's random
   response below flutter, whose envelope drifts: the demo's 8 m/s plateau, at -0.125 1/s with R^2 0.64, was
-  "decaying" and stopped the extrapolation).
+  "decaying" and stopped the extrapolation). A plateau with the wind off (U <= ``min_extrapolation_airspeed_mps``) is
+  never ``lco`` nor ``growing``: nothing feeds an oscillation there (a large free decay after an abort).
 * **Onset**: bracketed by the first unstable plateau in time (``lco`` or ``growing``; also the first
   ``lco`` one is named) and the fastest stable (``decaying``, ``stationary`` or ``quiet``) plateau below it *and before
   it in time*: once an LCO has started, a subcritical system may stay in LCO below the flutter speed
@@ -210,20 +211,24 @@ def onset_growth_rate_per_s(env: np.ndarray, window_s: float, crit: Criteria) ->
 
 
 def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sustain: float, r2: float,
-            crit: Criteria, tapped: bool = True) -> str:
+            crit: Criteria, tapped: bool = True, wind_off: bool = False) -> str:
     """lco: a sustained oscillation, either steady (|late rate| small) or irregular but large: RMS above
     irregular_lco_min_rms and either the RMS of the last third of the window within [0.5, 2] of the first
     third, or an envelope that is not exponential (R^2 of the log-envelope fit < 0.7; a free decay or growth
     fits with R^2 > 0.9). decaying: a measured decay, the free response after a shaker tap (``tapped``), or
     without one an envelope falling along a line (R^2 >= ``min_decay_r2``); a panel that moves but neither
     decays so nor grows is stationary (the turbulence's random response: its envelope drifts), one that does not
-    move quiet."""
+    move quiet. With the ``wind_off`` (at most ``min_extrapolation_airspeed_mps``) nothing feeds an oscillation: never
+    lco nor growing (the free decay of a panel the wind had left at 0.3-0.8 L after an abort, -0.1 1/s, was "lco" by
+    the irregular rule, whose 5 s window cannot tell so slow a decay from a sustained cycle)."""
     lim = crit.max_steady_rate_per_s
-    if rms_late >= crit.lco_min_rms and abs(rate_late) <= lim:
+    if wind_off:
+        pass
+    elif rms_late >= crit.lco_min_rms and abs(rate_late) <= lim:
         return "lco"
-    if rms_late >= crit.irregular_lco_min_rms and (0.5 <= sustain <= 2.0 or r2 < 0.7):
+    elif rms_late >= crit.irregular_lco_min_rms and (0.5 <= sustain <= 2.0 or r2 < 0.7):
         return "lco"
-    if rate > lim and rate_late > lim and peak_env > crit.quiet_rms and r2 >= crit.min_growth_r2:
+    elif rate > lim and rate_late > lim and peak_env > crit.quiet_rms and r2 >= crit.min_growth_r2:
         return "growing"
     if peak_env <= crit.quiet_rms:
         return "quiet"
@@ -253,7 +258,7 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     sustain = rms(late[-third:]) / max(rms(late[:third]), 1e-300)
     u = airspeed_mps[i0:i1]
     status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
-                     tapped=f0 > t0)
+                     tapped=f0 > t0, wind_off=float(np.mean(u)) <= crit.min_extrapolation_airspeed_mps)
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),
