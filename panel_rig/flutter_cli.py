@@ -307,7 +307,9 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     lines.append(f"{pred}; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
     lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; fluttered: {out['fluttered']}; "
                  f"stop: {out['stop_reason']}")
-    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}, RTF {num(out['node_rtf'], '.1f')})"
+    # (the wall time includes the node's start: "7 s simulated in 4.9 s wall ... RTF 79.7" read as a contradiction)
+    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}; its start took {out['node_startup_wall_s']:.1f} s, "
+             f"the test {out['test_wall_s']:.1f} s: RTF {num(out['node_rtf'], '.1f')})"
              if out.get("live") else "in-process rig")
     rerun = f"rerun: {out['rerun']}; " if out.get("rerun") else ""
     lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {rerun}{out['simulated_s']:.0f} s "
