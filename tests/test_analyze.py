@@ -223,6 +223,12 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         writer.close()
     assert main([str(tmp_path / "killed")]) == 2
     assert "panel-rig bag recover" in _one_error_line(capsys)
+    # a live flutter test's run directory holds its node's bag: the message said only "found 0"
+    run_dir = tmp_path / "flutter_test_run"
+    run_dir.mkdir()
+    shutil.copytree(tmp_path / "killed", run_dir / "rig_1")
+    assert main([str(run_dir)]) == 2
+    assert _one_error_line(capsys).endswith("found 0; it holds the bag rig_1: give it")
     with pytest.raises(SystemExit) as exc:
         main([])
     assert exc.value.code == 2

@@ -33,8 +33,19 @@ def single_mcap(bag_dir: Path) -> Path:
     """The one `*.mcap` file in `bag_dir` (metadata.yaml not consulted)."""
     candidates = sorted(Path(bag_dir).glob("*.mcap"))
     if len(candidates) != 1:
-        raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}")
+        raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}{_bags_inside(bag_dir)}")
     return candidates[0]
+
+
+def _bags_inside(directory: Path) -> str:
+    """", it holds the bag(s) NAME: give that directory" when ``directory`` has bag directories (a flutter test's run
+    directory holds its node's bag), else ""."""
+    bags = sorted(p.name for p in Path(directory).iterdir()
+                  if p.is_dir() and ((p / METADATA_FILE).is_file() or any(p.glob("*.mcap"))))
+    if not bags:
+        return ""
+    shown = ", ".join(bags[:3]) + (f" and {len(bags) - 3} more" if len(bags) > 3 else "")
+    return f"; it holds the bag{'s' if len(bags) > 1 else ''} {shown}: give {'one' if len(bags) > 1 else 'it'}"
 
 
 def has_summary(mcap_path: Path) -> bool:
