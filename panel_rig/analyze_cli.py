@@ -29,7 +29,7 @@ def _bag_size_mb(bag_dir: Path) -> float:
 def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, criteria: Any = None,
                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Analyse a rig bag: per-plateau metrics and onset; optional PNG plots and `.rrd`. ``progress``: called with
-    a line at each stage (a long recording takes ~0.2 s a MB to check and read).
+    a line at each stage (a long recording takes ~0.03 s a MB to check and read).
 
     Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
 

@@ -713,6 +713,58 @@ def test_modal_rows_are_cut_to_the_shortest() -> None:
 
     rows = _ModalRows()
     assert rows.matrix().shape == (0, 0)
-    for position in ([1.0, 2.0, 3.0], [4.0, 5.0], [6.0, 7.0, 8.0, 9.0]):
-        rows.append(position)
+    for stamp_ns, position in ((3, [1.0, 2.0, 3.0]), (1, [4.0, 5.0]), (2, [6.0, 7.0, 8.0, 9.0])):
+        rows.append(stamp_ns, position)
     assert rows.matrix().tolist() == [[1.0, 2.0], [4.0, 5.0], [6.0, 7.0]]
+    times_s, q = rows.sorted(t0_ns=1)  # read in the file's order, sorted by time
+    assert times_s.tolist() == [0.0, 1e-9, 2e-9] and q.tolist() == [[4.0, 5.0], [6.0, 7.0], [1.0, 2.0]]
+
+
+@pytest.mark.parametrize("frame_id", ["", "r", "rig_tip", "a_frame_id_of_seventeen"])
+def test_fixed_layout_reads_equal_the_general_decoder(frame_id: str) -> None:
+    """The tip, airspeed and modal-state values read at fixed CDR offsets (panel_rig.recording.fast_cdr) are the
+    mcap-ros2 decoder's, whatever the frame id's length does to the alignment; bytes that are not little-endian
+    CDR are left to the decoder (None)."""
+    from mcap_ros2._dynamic import generate_dynamic
+
+    from panel_rig.recording.fast_cdr import joint_positions, point_z, vector_x
+    from panel_rig.recording.schemas import schema_text
+
+    def decoded(msg: Any, type_name: str) -> Any:
+        return generate_dynamic(type_name, schema_text(type_name))[type_name](serialize_message(msg))
+
+    tip = PointStamped()
+    tip.header.frame_id, tip.point.x, tip.point.y, tip.point.z = frame_id, 1.5, -2.5, 3.25e-4
+    assert point_z(serialize_message(tip)) == decoded(tip, "geometry_msgs/msg/PointStamped").point.z == 3.25e-4
+    air = Vector3Stamped()
+    air.header.frame_id, air.vector.x, air.vector.y = frame_id, 11.46, 0.7
+    assert vector_x(serialize_message(air)) == decoded(air, "geometry_msgs/msg/Vector3Stamped").vector.x == 11.46
+    modal = JointState(name=[frame_id, "q2", "mode_three"], position=[0.1, -0.2, 0.3], velocity=[1.0, 2.0, 3.0])
+    modal.header.frame_id = frame_id
+    assert joint_positions(serialize_message(modal)) == tuple(
+        decoded(modal, "sensor_msgs/msg/JointState").position) == (0.1, -0.2, 0.3)
+    big_endian = b"\x00\x00" + serialize_message(tip)[2:]
+    assert point_z(big_endian) is None and vector_x(big_endian) is None and joint_positions(big_endian) is None
+
+
+def test_a_bag_written_out_of_time_order_is_read_in_time_order(tmp_path: Path) -> None:
+    """The series are read in the file's order and sorted by time (mcap's merge into log-time order took a fifth of
+    the reading): a bag whose messages are not in time order gives the same series as one that is."""
+    import numpy as np
+
+    from panel_rig.recording.series import load_series
+
+    stamps = np.random.default_rng(3).permutation(np.arange(1, 41)) * 2_000_000  # 2 ms apart, shuffled
+    with BagWriter(tmp_path / "shuffled", chunk_size_bytes=512) as writer:  # several chunks
+        for k, stamp in enumerate(stamps):
+            tip, air = PointStamped(), Vector3Stamped()
+            tip.point.z, air.vector.x = stamp * 1e-12, 5.0 + stamp * 1e-9
+            writer.write("/rig/tip_displacement", tip, int(stamp))
+            writer.write("/rig/airspeed", air, int(stamp))
+            if k == 20:
+                writer.write("/rig/airspeed_cmd", Float64(data=6.0), int(stamp), qos="reliable")
+    rec = load_series(tmp_path / "shuffled")
+    assert np.all(np.diff(rec.t_s) > 0) and rec.t_s[0] == 2e-3
+    np.testing.assert_allclose(rec.tip_w_over_L * rec.panel_length_m, (rec.t_s * 1e9) * 1e-12, rtol=1e-12)
+    np.testing.assert_allclose(rec.airspeed_mps, 5.0 + rec.t_s, rtol=1e-12)
+    assert rec.commands["airspeed_cmd"] == [(stamps[20] * 1e-9, 6.0)]

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
     ChunkIndex,
@@ -31,7 +33,7 @@ from mcap.records import (
     Schema,
     Statistics,
 )
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END = 0x01, 0x02, 0x06, 0x07, 0x0F
@@ -180,9 +182,8 @@ def _parse_chunk(raw: bytes) -> tuple[ChunkInfo, list[Any], str]:
     start, end, usize, crc, clen = _CHUNK_HEAD.unpack_from(raw, 9)
     info = ChunkInfo(index=-1, offset=0, length=len(raw), start_ns=start, end_ns=end)
     try:
-        chunk = _one_record(raw)
-        records = breakup_chunk(chunk, validate_crc=False)
-        data = _chunk_data(chunk)
+        data = _chunk_data(_one_record(raw))
+        records = chunk_records(data)
     except Exception as exc:  # noqa: BLE001 - corrupt content can fail anywhere in the parser
         return info, [], f"unreadable chunk ({_what_broke(exc)})"
     if crc != 0 and zlib.crc32(data) != crc:
@@ -197,6 +198,34 @@ def _parse_chunk(raw: bytes) -> tuple[ChunkInfo, list[Any], str]:
         if isinstance(r, Message):
             info.topic_counts[r.channel_id] = info.topic_counts.get(r.channel_id, 0) + 1
     return info, records, ""
+
+
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+
+
+def chunk_records(data: bytes) -> list[Any]:
+    """The records of a chunk's uncompressed ``data``: schemas, channels and messages (others skipped, as mcap
+    does). Message records are read at fixed offsets: mcap's general record parser took a third of reading a bag.
+    Raises EOFError for a record that runs past the end."""
+    out: list[Any] = []
+    pos, size = 0, len(data)
+    while pos < size:
+        if pos + _FRAME.size > size:
+            raise EOFError("a record frame cut off by the chunk's end")
+        opcode, length = _FRAME.unpack_from(data, pos)
+        body, pos = pos + _FRAME.size, pos + _FRAME.size + length
+        if pos > size:
+            raise EOFError("a record runs past the chunk's end")
+        if opcode == Opcode.MESSAGE:
+            if length < _MESSAGE_HEAD.size:
+                raise EOFError("a message record shorter than its header")
+            channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, body)
+            out.append(Message(channel_id=channel_id, sequence=sequence, log_time=log_time,
+                               publish_time=publish_time, data=data[body + _MESSAGE_HEAD.size : pos]))
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            kind = Schema if opcode == Opcode.SCHEMA else Channel
+            out.append(kind.read(ReadDataStream(io.BytesIO(data[body:pos]))))
+    return out
 
 
 def _chunk_data(chunk: Any) -> bytes:
