@@ -468,3 +468,21 @@ def test_a_second_ctrl_c_while_a_stopped_test_winds_up_keeps_its_report(tmp_path
     assert code == 130 and out["interrupted"] is True, captured.err
     assert len(out["test_points"]) == 1 and out["stop_reason"].startswith("interrupted by SIGINT after 1 test")
     assert (tmp_path / "vg.png").stat().st_size > 0
+
+
+def test_a_window_of_exactly_the_minimum_dwell_is_a_test_point(monkeypatch):
+    """A `--dwell 20` test's 8.384 m/s point, commanded at 63.00000000000001 s (a sum of simulated seconds), had a
+    replay window of 19.999999999999993 s, under the 20 s minimum: `analyze` dropped it without a word and its
+    prediction differed from the test's."""
+    import numpy as np
+
+    from panel_rig.analysis import flutter_test
+
+    monkeypatch.setattr(flutter_test, "identify_point",
+                        lambda y, dt, u, bands, force=None, ssi=None: flutter_test.TestPoint(u, None, None, "stub"))
+    t = np.arange(0.0, 90.0, 1.0 / 512.0)
+    tip = 1e-6 * np.sin(2 * np.pi * 23.0 * t)
+    cmds = [(42.0, 5.0), (63.00000000000001, 6.0), (84.0, 0.0)]
+    points = flutter_test.replay_points(t, tip, cmds, lambda u: [], 0.27, settle_s=1.0, min_dwell_s=20.0,
+                                        dwell_s=20.0)
+    assert [p.airspeed_mps for p in points] == [5.0, 6.0]
