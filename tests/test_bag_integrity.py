@@ -155,6 +155,12 @@ def test_one_flipped_bit_is_found_refused_and_recovered(tmp_path: Path, capsys: 
     assert scan_mcap(path).ok and recover_bag(bag).was_complete
     assert analyze_main([str(bag), "--json"]) == 0  # 2.8 s of 52 s lost: still analysable
     capsys.readouterr()
+    # the recovered bag is chunked as the recorder chunks (it had mcap's 1 MiB: 2 chunks for the whole bag, so the
+    # next damage lost 16x more)
+    from panel_rig.recording.writer import CHUNK_SIZE_BYTES
+
+    chunks = scan_mcap(path).chunks
+    assert len(chunks) >= len(scan.chunks) - 1 and max(c.length for c in chunks) < 2 * CHUNK_SIZE_BYTES
 
 
 # ------------------------------------------------------------------------------ many flipped bytes

@@ -38,6 +38,7 @@ from panel_rig.recording.metadata import (
 )
 from panel_rig.recording.reader import find_mcap, single_mcap
 from panel_rig.recording.writer import (
+    CHUNK_SIZE_BYTES,
     LIBRARY,
     PARAMETERS_KEY,
     PARAMETERS_RECORD,
@@ -105,7 +106,8 @@ def _write_recovered(scan: McapScan, out_path: Path, summary: BagSummary) -> tup
     """Write every recovered message into a new MCAP; returns (written, skipped)."""
     written = skipped = 0
     with open(out_path, "xb") as stream:
-        writer = Writer(stream, chunk_size=1024 * 1024, compression=CompressionType.NONE)
+        # the recorder's chunks (mcap's default of 1 MiB made a recovered bag lose 16x more to the next damage)
+        writer = Writer(stream, chunk_size=CHUNK_SIZE_BYTES, compression=CompressionType.NONE)
         writer.start(profile=scan.profile or PROFILE, library=f"{LIBRARY}; recovered")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, tuple[int, TopicInfo]] = {}

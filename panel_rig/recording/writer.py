@@ -225,6 +225,10 @@ def _prepare_dir(bag_dir: Path) -> Path:
     return bag_dir
 
 
+#: the recorder's chunk size: a damaged chunk loses its messages only (``bag recover`` writes the same size)
+CHUNK_SIZE_BYTES = 64 * 1024
+
+
 class BagWriter:
     """Write rclpy messages into `bag_dir/<name>_0.mcap` and, on close, `metadata.yaml`.
 
@@ -240,7 +244,7 @@ class BagWriter:
         self,
         bag_dir: Path,
         *,
-        chunk_size_bytes: int = 64 * 1024,
+        chunk_size_bytes: int = CHUNK_SIZE_BYTES,
         flush_period_s: float = 0.5,
     ) -> None:
         if chunk_size_bytes <= 0 or not flush_period_s > 0:
