@@ -784,6 +784,9 @@ def _run_subcommand(argv: Sequence[str]) -> int:
     except OSError as exc:  # a file that cannot be written or read (a plot in a missing directory, ...): one line
         print(f"panel-rig: error: {exc}", file=sys.stderr)
         return 2
+    except MemoryError as exc:  # a size the checks let through but this machine cannot hold: one line, not a traceback
+        print(f"panel-rig: error: out of memory ({exc or 'the allocation failed'}): use a smaller model", file=sys.stderr)
+        return 1
 
 
 def _silence_stdout() -> None:

@@ -153,6 +153,22 @@ def test_gust_cli_json_and_bad_input(capsys):
         assert main(bad) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and err, bad
+    # accepted sizes whose dense lattice this machine cannot hold: refused before any allocation (2000 elements asked
+    # 111 GiB for the 60-chord wake and ended in a MemoryError traceback)
+    for big in (["gust", "--k", "1", "--set", "aero.elements=2000"], ["gust", "--k", "1", "--wake-chords", "500"]):
+        assert main(big) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "GiB" in err and "use fewer elements or a shorter wake" in err, err
+
+
+def test_lattice_memory_guard():
+    from panel_rig.model.aerodynamics import lattice_memory_problem
+
+    gib = 2.0**30
+    assert lattice_memory_problem(60, 60, 8 * gib) is None  # the paper's: 120 states
+    assert lattice_memory_problem(120, 7200, 24 * gib) is None  # the gust convergence check's: 1.6 GiB
+    problem = lattice_memory_problem(2000, 120000, 24 * gib)
+    assert problem is not None and problem.startswith("a lattice of 2000 body + 120000 wake elements needs about 444 GiB")
 
 
 def test_gust_cli_table_gives_the_errors_against_sears(capsys):
@@ -205,3 +221,16 @@ def test_stepper_gust_response_matches_the_continuous_model(f_hz):
     expected = -1j * tip_hat  # sin(omega t) = Re[-i exp(i omega t)]
     assert abs(abs(fit) / abs(expected) - 1) < 0.01, (abs(fit), abs(expected))
     assert abs(np.degrees(np.angle(fit / expected))) < 1.0
+
+
+def test_an_allocation_that_fails_is_one_line_not_a_traceback(capsys, monkeypatch):
+    from panel_rig.analysis import gust
+
+    def too_big(*args, **kwargs):
+        raise MemoryError("Unable to allocate 111. GiB for an array with shape (122000, 122000)")
+
+    monkeypatch.setattr(gust, "sears_comparison", too_big)
+    assert main(["gust", "--k", "1"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == ("panel-rig: error: out of memory (Unable to allocate 111. GiB for an array with shape (122000, "
+                   "122000)): use a smaller model"), err

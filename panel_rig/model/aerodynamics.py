@@ -17,6 +17,7 @@ w = -(dw_s/dt + U dw_s/dx) for a surface displacement w_s positive up, so a nose
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,34 @@ class VortexLattice:
         return np.linalg.solve(self.A + self.B, np.eye(self.size)[:, : self.n_body])
 
 
+#: dense n x n float64 matrices a lattice's analysis holds at its peak (A, B and the solves': 2.2 measured for the
+#: gust's frequency response, the ROM's eigen-analysis more)
+LATTICE_PEAK_MATRICES = 4
+
+
+def lattice_memory_problem(n_body: int, n_wake: int, memory_bytes: float | None = None) -> str | None:
+    """Why a lattice of ``n_body`` + ``n_wake`` elements cannot be analysed here: its dense matrices would need more
+    than half of ``memory_bytes`` (default: this machine's physical memory). None when it can. (`gust --set
+    aero.elements=2000` asked 111 GiB for its 60-chord wake and ended in a traceback.)"""
+    n = n_body + n_wake
+    need = LATTICE_PEAK_MATRICES * 8.0 * n * n
+    if memory_bytes is None:
+        memory_bytes = physical_memory_bytes()
+    if memory_bytes is None or need <= 0.5 * memory_bytes:
+        return None
+    return (f"a lattice of {n_body} body + {n_wake} wake elements needs about {need / 2**30:.0f} GiB (dense "
+            f"{n} x {n} matrices), more than half of this machine's {memory_bytes / 2**30:.0f} GiB: use fewer "
+            "elements or a shorter wake")
+
+
+def physical_memory_bytes() -> float | None:
+    """This machine's physical memory (bytes), None where the system does not say."""
+    try:
+        return float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
 def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float,
                   running_sum: str = "inclusive") -> VortexLattice:
     """Assemble A and B of Eq. (3) for equal elements dx = chord / n_body on body and wake; ``running_sum`` is the
@@ -69,6 +98,9 @@ def build_lattice(chord_m: float, n_body: int, n_wake: int, relaxation: float,
         raise ValueError(f"running_sum must be one of {tuple(RUNNING_SUM_OWN)}, got {running_sum!r}")
     dx = chord_m / n_body
     n = n_body + n_wake
+    problem = lattice_memory_problem(n_body, n_wake)
+    if problem is not None:
+        raise ValueError(problem)
     xv = np.arange(n) + 0.25  # in dx units
     xc = np.arange(n_body) + 0.75
     A = np.zeros((n, n))
