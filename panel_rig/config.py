@@ -164,7 +164,8 @@ SCHEMA: dict[str, _Spec] = {
     "aero.rom_modes": _num("rom_modes", 1, kind=int),
     "aero.load_point": _choice("load_point", LOAD_POINTS),
     "aero.running_sum": _choice("running_sum", RUNNING_SUMS),
-    "sim.dt_s": _num("dt_s", 0.0, 0.01, lo_open=True),
+    # from 1 us: a step of 1 ns was taken, and `lco --duration 1` then marched 1e9 steps (~17 min) without a word
+    "sim.dt_s": _num("dt_s", 1e-6, 0.01),
     "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, lo_open=True),
     "tunnel.turbulence.intensity": _num("turbulence_intensity", 0.0, 0.2),  # sigma / U
     "tunnel.turbulence.length_scale_m": _num("turbulence_length_scale_m", 1e-3, 100.0),

@@ -57,6 +57,8 @@ def test_flutter_plot(tmp_path):
     (["lco", "--airspeed", "5", "--duration", "0.01", "--set", "aero.rom_modes=500"], "1 to 60 aerodynamic eigenmodes"),
     (["flutter", "--rom-modes", "5"], "--aero rom"),  # the full lattice's analysis ignored it
     (["modes", "--set", "structure.modes=two"], "structure.modes"),
+    # a 1 ns step: `lco --duration 1` marched 1e9 steps (~17 min) without a word
+    (["lco", "--airspeed", "11", "--duration", "1", "--set", "sim.dt_s=1e-9"], "sim.dt_s: must lie in [1e-06, 0.01]"),
     # the lattice is incompressible: no airspeed beyond Mach ~0.3 (a 200 m/s run gave a 781 Hz "LCO")
     (["lco", "--airspeed", "150"], "Mach 0.3"),
     (["lco-sweep", "--airspeeds", "90:110:10"], "Mach 0.3"),
