@@ -152,7 +152,10 @@ def test_an_unreachable_scheduler_is_one_clear_error(base, tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     with pytest.raises(ClusterError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}"):
-        run_study(parse_spec(FLUTTER_SPEC, base), tmp_path, scheduler=f"tcp://127.0.0.1:{port}", timeout_s=2.0)
+        run_study(parse_spec(FLUTTER_SPEC, base), tmp_path / "a", scheduler=f"tcp://127.0.0.1:{port}", timeout_s=2.0)
+    with pytest.raises(ClusterError, match="--scheduler foo: not a Dask scheduler address"):  # was Dask's words only
+        run_study(parse_spec(FLUTTER_SPEC, base), tmp_path / "b", scheduler="foo", timeout_s=2.0)
+    assert list(tmp_path.iterdir()) == []  # a refused study left an empty results.zarr behind
 
 
 def test_a_port_that_refuses_connections_is_told_from_a_scheduler_that_listens():

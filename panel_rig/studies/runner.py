@@ -90,13 +90,32 @@ def refuses_connections(address: str, grace_s: float) -> bool:
             return False
 
 
+def scheduler_problem(scheduler: str, timeout_s: float = 60.0) -> str | None:
+    """Why ``scheduler`` cannot be a study's: an address Dask cannot parse (``foo``: no port), or a TCP port that
+    refuses connections (:func:`refuses_connections`). None when it may be one (Dask's own timeout decides the
+    rest). A study checks this before it makes its store: a refused study left an empty results.zarr behind."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+        if scheme == "tcp":
+            parse_host_port(location)
+    except ValueError as exc:
+        return f"--scheduler {scheduler}: not a Dask scheduler address ({exc}; e.g. tcp://HOST:8786)"
+    grace_s = min(timeout_s, REFUSED_GRACE_S)
+    if refuses_connections(scheduler, grace_s):
+        return (f"cannot reach the Dask scheduler at {scheduler}: connection refused (nothing listens on that port; "
+                f"tried for {grace_s:g} s)")
+    return None
+
+
 @contextlib.contextmanager
 def connect(workers: int | None = None, scheduler: str | None = None, timeout_s: float = 60.0) -> Iterator[Client]:
     """A client of ``scheduler`` (an address), else of a new LocalCluster with ``workers`` processes."""
     if scheduler:
-        if refuses_connections(scheduler, min(timeout_s, REFUSED_GRACE_S)):
-            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler}: connection refused (nothing "
-                               f"listens on that port; tried for {min(timeout_s, REFUSED_GRACE_S):g} s)")
+        problem = scheduler_problem(scheduler, timeout_s)
+        if problem is not None:
+            raise ClusterError(problem)
         try:
             client = Client(scheduler, timeout=f"{timeout_s}s")
         except OSError as exc:
@@ -226,6 +245,9 @@ def run_study(study: Study, out_dir: str | Path, workers: int | None = None, sch
     is lost on the way, raises :class:`ClusterError` (whatever arrived before is stored).
     """
     t0 = time.perf_counter()
+    problem = scheduler_problem(scheduler, timeout_s) if scheduler else None
+    if problem is not None:  # before the store is made
+        raise ClusterError(problem)
     store = Store.open(out_dir, study, state_len=lambda: _state_len(study))
     missing = store.missing()
     info: dict[str, Any] = {"store": store, "computed": 0, "workers": 0, "cases": len(study.cases), "write_s": 0.0,
