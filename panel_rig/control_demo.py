@@ -31,7 +31,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.config import number_if_text
 from panel_rig.domains import private_domain_id
-from panel_rig.paths import make_output_dir
+from panel_rig.paths import check_output_dir
 from panel_rig.processes import (
     RIG_STARTUP_TIMEOUT_S,
     Interrupted,
@@ -331,9 +331,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
         print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
         return 2
-    try:  # before anything runs: a directory that cannot be made was a traceback after the design
-        make_output_dir(args.out, "--out")
-        make_output_dir(args.bag_dir, "--bag-dir")
+    try:  # before anything runs: a directory that cannot be made was a traceback after the design; checked without
+        # a trace (`run` makes them once the design is accepted: a refused command age left two empty directories)
+        check_output_dir(args.out, "--out")
+        check_output_dir(args.bag_dir, "--bag-dir")
     except ValueError as exc:
         print(f"panel-rig control-demo: {exc}", file=sys.stderr)
         return 2
