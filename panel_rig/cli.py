@@ -18,7 +18,7 @@ from panel_rig import jsonio
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
-from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path
+from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path, rrd_path_problem
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Interrupted
 
 
@@ -559,6 +559,9 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         raise UsageError(f"--domain-id must be in [0, {MAX_DOMAIN_ID}] (ROS 2 on Linux), got {args.domain_id}")
     # where the results go is checked before the test runs, not after (a failed plot lost the whole run; the
     # --plot directory is checked by _config)
+    problem = rrd_path_problem(args.rerun) if args.rerun else None
+    if problem:  # before any directory is made (a refused --rerun left the --bag-dir made)
+        raise UsageError(f"--rerun: {problem}")
     make_output_dir(Path(args.bag_dir), "--bag-dir")
     if args.rerun:
         prepare_rrd_path(args.rerun, "--rerun")

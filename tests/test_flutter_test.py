@@ -486,3 +486,13 @@ def test_a_window_of_exactly_the_minimum_dwell_is_a_test_point(monkeypatch):
     points = flutter_test.replay_points(t, tip, cmds, lambda u: [], 0.27, settle_s=1.0, min_dwell_s=20.0,
                                         dwell_s=20.0)
     assert [p.airspeed_mps for p in points] == [5.0, 6.0]
+
+
+def test_a_refused_rerun_path_makes_no_bag_directory(tmp_path, capsys):
+    """`flutter-test --rerun x.txt --bag-dir NEW`: refused (exit 2, one line), but NEW had been made first."""
+    from panel_rig.cli import main
+
+    assert main(["flutter-test", "--in-process", "--rerun", str(tmp_path / "x.txt"),
+                 "--bag-dir", str(tmp_path / "bags")]) == 2
+    assert "--rerun: a Rerun recording is saved to a .rrd file" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
