@@ -61,3 +61,19 @@ def test_continuous_model_matches_discrete_eq24(model, full):
     cont = find_flutter(model, aero="full", formulation="continuous")
     assert cont.speed_mps == pytest.approx(full.speed_mps, rel=5e-3)
     assert cont.frequency_hz == pytest.approx(full.frequency_hz, rel=5e-3)
+
+
+def test_the_flutter_command_searches_the_whole_airspeed_range(capsys):
+    """`flutter` stopped at 60 m/s, every command taking up to 100 m/s: a 1.2 mm panel (ROM) fluttering at 60.4 m/s
+    was "no flutter found up to 60 m/s". A model that does not flutter in the range says how far it looked."""
+    import json
+
+    from panel_rig.cli import main
+
+    assert main(["flutter", "--set", "panel.thickness_m=0.0012", "--aero", "rom", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["flutter_speed_mps"] == pytest.approx(60.37, abs=0.01)
+    assert main(["flutter", "--set", "panel.thickness_m=0.003", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["flutter_speed_mps"] is None and out["searched_up_to_mps"] == 100.0
+    assert main(["flutter", "--set", "panel.thickness_m=0.003"]) == 0
+    assert capsys.readouterr().out.startswith("no flutter found up to 100 m/s")
