@@ -15,7 +15,6 @@ Starts the rig node (fast mode: the controller runs in lock-step with it, the tr
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import math
 import os
@@ -29,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.argparsing import OneLineParser
 from panel_rig.config import number_if_text
 from panel_rig.domains import private_domain_id
 from panel_rig.paths import check_output_dir
@@ -319,7 +319,7 @@ def onset_summary(rates: Sequence[float], pred_mps: float) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="panel-rig control-demo", description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog="panel-rig control-demo", description=__doc__.splitlines()[0])
     ap.add_argument("--delay-ms", type=float, default=2.0,
                     help="command age the rig emulates (lock-step), ms; e.g. the p99 of benchmarks/control_latency.py; its "
                          "prediction is panel-rig flutter --control --command-age-ms (default: %(default)s)")
@@ -329,7 +329,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.delay_ms) and 0 <= args.delay_ms <= 50):
-        print("panel-rig control-demo: --delay-ms must be in [0, 50]", file=sys.stderr)
+        print(f"panel-rig control-demo: --delay-ms must be in [0, 50], got {args.delay_ms:g}", file=sys.stderr)
         return 2
     try:  # before anything runs: a directory that cannot be made was a traceback after the design; checked without
         # a trace (`run` makes them once the design is accepted: a refused command age left two empty directories)

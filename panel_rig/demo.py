@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from panel_rig import jsonio
+from panel_rig.argparsing import OneLineParser
 from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, module_command, sigterm_exits, spawn, stop
@@ -52,7 +53,7 @@ def _analyze(bag: Path, out: Path) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo session; 0 on success (an abort of the rig is reported, not a failure)."""
-    ap = argparse.ArgumentParser(prog="panel-rig demo", description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog="panel-rig demo", description=__doc__.splitlines()[0])
     ap.add_argument("--profile", default=str(ROOT / "config" / "staircase.yaml"))
     ap.add_argument("--out", default="out/demo", help="directory for the .rrd, plots and logs")
     ap.add_argument("--bag-dir", default="bags")

@@ -70,3 +70,13 @@ def test_the_installed_programs_keep_their_own_names(main, usage, capsys):
     with pytest.raises(SystemExit):
         importlib.import_module(main).main(["--help"])
     assert capsys.readouterr().out.startswith(usage)
+
+
+@pytest.mark.parametrize("program", ["run", "operate", "control", "control-demo", "demo"])
+def test_a_program_s_unknown_option_is_one_line(program, capsys):
+    """`panel-rig control-demo --bogus` (and run, operate, control, demo) printed argparse's usage block before the
+    error, two lines where every other subcommand gives one."""
+    with pytest.raises(SystemExit) as done:
+        cli.main([program, "--bogus"])
+    err = capsys.readouterr().err.strip()
+    assert done.value.code == 2 and err.startswith(f"panel-rig {program}: error: ") and "\n" not in err, err

@@ -20,7 +20,6 @@ the airspeed is only reported.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import threading
@@ -35,6 +34,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
+from panel_rig.argparsing import OneLineParser
 from panel_rig.rig.control import ControlSettings
 from panel_rig.ros.params import as_declared
 from panel_rig.ros.session import ros_arguments_problem, ros_session
@@ -199,7 +199,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "rig_controller") -> 
     from rclpy.utilities import remove_ros_args
 
     args = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="physics parameters for the design (default: the paper's)")
     problem = ros_arguments_problem(args)

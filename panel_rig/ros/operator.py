@@ -15,7 +15,6 @@ Run: ``rig_operator --profile config/staircase.yaml [--namespace /rig] [--timeou
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import threading
@@ -34,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from panel_rig.argparsing import OneLineParser
 from panel_rig.config import ConfigError, load_yaml_file, number_if_text
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest
 from panel_rig.ros.messages import rig_status
@@ -432,7 +432,7 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "rig_operator") -> in
     from rclpy.utilities import remove_ros_args
 
     args = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog=prog, description="play a profile against the panel_rig node")
+    parser = OneLineParser(prog=prog, description="play a profile against the panel_rig node")
     parser.add_argument("--profile", required=True, metavar="FILE.yaml", help="YAML profile (see config/staircase.yaml)")
     parser.add_argument("--namespace", default="/rig", help="the rig's namespace (default /rig)")
     parser.add_argument("--timeout", type=float, default=10.0,

@@ -19,6 +19,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from panel_rig.argparsing import OneLineParser
 from panel_rig.config import ConfigError, number_if_text, read_params_file
 from panel_rig.ros.node import RigNode, StartupError, StepperFactory
 from panel_rig.ros.params import parameter_table
@@ -123,11 +124,10 @@ def parse_args(argv: Sequence[str], prog: str = "rig_node") -> tuple[Any, list[s
     """(own options, full argument list for rclpy). Own options are whatever is not a ROS argument
     (rclpy's ``remove_ros_args``): ``--fast``, ``--params FILE`` (repeatable). ``prog`` names the program in
     ``--help`` and usage errors."""
-    import argparse
 
     from rclpy.utilities import remove_ros_args
 
-    parser = argparse.ArgumentParser(prog=prog, description="panel_rig emulated wind tunnel node")
+    parser = OneLineParser(prog=prog, description="panel_rig emulated wind tunnel node")
     parser.add_argument("--fast", action="store_true", help="run as fast as possible, publish /clock")
     parser.add_argument("--params", action="append", default=[], metavar="FILE",
                         help="a 'panel_rig:' parameters file applied in any namespace (repeatable)")
