@@ -101,6 +101,8 @@ class _Spec:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
         if self.kind is float:
             value = number_if_text(value)  # `5e-6`: text to YAML 1.1, a number to rcl and to the reader
+            if isinstance(value, str) and value.strip().lower().lstrip("+-.") in ("inf", "infinity", "nan"):
+                raise ConfigError(f"{key}: must be a finite number, got {value!r}")  # not "expected a number"
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ConfigError(f"{key}: expected a number, got {value!r}")
             value = float(value)

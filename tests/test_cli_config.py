@@ -57,6 +57,8 @@ def test_flutter_plot(tmp_path):
     (["lco", "--airspeed", "5", "--duration", "0.01", "--set", "aero.rom_modes=500"], "1 to 60 aerodynamic eigenmodes"),
     (["flutter", "--rom-modes", "5"], "--aero rom"),  # the full lattice's analysis ignored it
     (["modes", "--set", "structure.modes=two"], "structure.modes"),
+    (["modes", "--set", "panel.thickness_m=inf"], "panel.thickness_m: must be a finite number, got 'inf'"),
+    (["modes", "--set", "panel.thickness_m=.nan"], "panel.thickness_m: must be finite, got nan"),  # YAML's NaN
     # a 1 ns step: `lco --duration 1` marched 1e9 steps (~17 min) without a word
     (["lco", "--airspeed", "11", "--duration", "1", "--set", "sim.dt_s=1e-9"], "sim.dt_s: must lie in [1e-06, 0.01]"),
     # the lattice is incompressible: no airspeed beyond Mach ~0.3 (a 200 m/s run gave a 781 Hz "LCO")
@@ -314,9 +316,11 @@ def test_set_takes_numbers_yaml_1_1_leaves_as_text():
     assert out.returncode == 0, out.stderr
     assert load_config(None, ["sensor.tip_noise_m=5e-6"]).sensor_tip_noise_m == 5e-6
     assert config_from_flat({"panel.thickness_m": "3e-4"}).panel_thickness_m == 3e-4
-    for text in ("1_0", "nan", "0x10", "3e-4 m"):
+    for text in ("1_0", "0x10", "3e-4 m"):
         with pytest.raises(ConfigError, match="expected a number"):
             config_from_flat({"air.density_kgpm3": text})
+    with pytest.raises(ConfigError, match="must be a finite number, got 'nan'"):  # text, but no number we take
+        config_from_flat({"air.density_kgpm3": "nan"})
 
 
 def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():
