@@ -222,6 +222,16 @@ def test_the_node_and_the_cli_take_the_same_flutter_test_margins():
     assert run("flutter-test", "--in-process", "--margin", "1").returncode == 2
 
 
+def test_a_negative_number_in_exponent_form_is_a_value():
+    """`static --tip-force -5e0` was "argument --tip-force: expected one argument": argparse took -5e0 for an
+    option (its pattern knows -5 and -.5); -5 and --tip-force=-5e0 worked."""
+    from panel_rig.cli import build_parser
+
+    args = build_parser().parse_args(["static", "--tip-force", "-5e0"])
+    assert args.tip_force == -5.0
+    assert build_parser().parse_args(["static", "--tip-load-parameter", "-2.5E+1"]).tip_load_parameter == -25.0
+
+
 def test_default_file_is_the_paper():
     c = load_config()
     assert (c.panel_length_m, c.panel_thickness_m, c.airfoil_length_m) == (0.27, 0.00036, 0.072)
