@@ -222,6 +222,16 @@ def test_the_node_and_the_cli_take_the_same_flutter_test_margins():
     assert run("flutter-test", "--in-process", "--margin", "1").returncode == 2
 
 
+def test_the_node_s_physics_step_has_sim_dt_s_s_bounds():
+    """physics_dt took 1e-9 s (any value in [0, 0.01]): 1e9 steps a simulated second."""
+    from panel_rig.ros.params import check_node_params
+
+    assert check_node_params({"physics_dt": 0.0}) == [] == check_node_params({"physics_dt": 1 / 4096})
+    for bad in (1e-9, 0.02, "x"):
+        (problem,) = check_node_params({"physics_dt": bad})
+        assert "must be 0 (use sim.dt_s) or in [1e-06, 0.01] s" in problem, problem
+
+
 def test_a_negative_number_in_exponent_form_is_a_value():
     """`static --tip-force -5e0` was "argument --tip-force: expected one argument": argparse took -5e0 for an
     option (its pattern knows -5 and -.5); -5 and --tip-force=-5e0 worked."""

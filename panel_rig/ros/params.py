@@ -72,10 +72,20 @@ def _rerun(v: Any) -> str | None:
     return None if isinstance(v, str) and _RERUN.match(v) else f"expected none | save:PATH | connect:URL, got {v!r}"
 
 
+def _physics_dt(v: Any) -> str | None:
+    """0 (sim.dt_s), or a step within sim.dt_s's bounds (a 1 ns step was taken: 1e9 steps a simulated second)."""
+    spec = SCHEMA["sim.dt_s"]
+    number = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    if number and (v == 0 or spec.ok(v)):
+        return None
+    return f"must be 0 (use sim.dt_s) or in [{spec.lo:g}, {spec.hi:g}] s, got {v!r}"
+
+
 _LIMITS, _TUNNEL, _CONTROL = SafetyLimits(), TunnelSettings(), ControlSettings()
 
 NODE_PARAMS: dict[str, NodeParam] = {
-    "physics_dt": _number(0.0, False, "physics step, s (0: use sim.dt_s)", 0.0, 0.01),
+    "physics_dt": NodeParam(0.0, False, _physics_dt, "physics step, s (0: use sim.dt_s; else within sim.dt_s's "
+                            "bounds)", 0.0, SCHEMA["sim.dt_s"].hi),
     "publish_rate_hz": _number(500.0, True, "readings and timer tick rate, Hz", 1.0, 5000.0),
     "shape_rate_hz": _number(30.0, True, "panel_shape marker rate (simulated time), Hz", 0.1, 200.0),
     "diagnostics_rate_hz": _number(2.0, True, "/diagnostics rate (wall time), Hz", 0.1, 50.0),
