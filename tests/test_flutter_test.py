@@ -496,3 +496,19 @@ def test_a_refused_rerun_path_makes_no_bag_directory(tmp_path, capsys):
                  "--bag-dir", str(tmp_path / "bags")]) == 2
     assert "--rerun: a Rerun recording is saved to a .rrd file" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_replay_skips_a_step_down_as_the_live_monitor_does(monkeypatch):
+    """6, 7, 8 m/s, down to 5, then 9 m/s: the live monitor skips the step down and takes 9 m/s; the replay stopped
+    at the step down, so a bag's replay lost the test's later points (a user's 10.2 m/s point and its prediction)."""
+    import numpy as np
+
+    from panel_rig.analysis import flutter_test
+
+    monkeypatch.setattr(flutter_test, "identify_point",
+                        lambda y, dt, u, bands, force=None, ssi=None: flutter_test.TestPoint(u, None, None, "stub"))
+    t = np.arange(0.0, 130.0, 1.0 / 512.0)
+    cmds = [(0.0, 6.0), (25.0, 7.0), (50.0, 8.0), (75.0, 5.0), (100.0, 9.0)]
+    points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
+                                        settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0)
+    assert [p.airspeed_mps for p in points] == [6.0, 7.0, 8.0, 9.0]

@@ -421,7 +421,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
-    ``min_dwell_s``, in increasing airspeed, up to the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
+    ``min_dwell_s``, each above the last point taken (a step down is skipped, as the live monitor skips it), up to
+    the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
     (:func:`_fluttered`). Given the measured ``airspeed_mps`` (m/s, on ``t_s``), a window whose median is not
     within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
     refused, an aborted rig). ``complete_only`` (a recording of the monitor, whose points each took a whole
@@ -439,8 +440,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
         if (u <= 0 or t_end - tc - settle_s < min_dwell_s - TIME_TOLERANCE_S
                 or not _tunnel_at(t, airspeed_mps, tc + settle_s, t_end, u)):
             continue
-        if out and u <= out[-1].airspeed_mps:
-            break
+        if out and u <= out[-1].airspeed_mps:  # the monitor follows the ascent only: a step down is no point (the
+            continue  # replay stopped there, and a live test's later points, the monitor's too, were lost)
         if _fluttered(t, y, tc, tc + settle_s, t_end, force_npm, panel_length_m):
             break
         if complete_only and t_end - tc - settle_s < COMPLETE_DWELL_FRACTION * dwell_s:
