@@ -17,7 +17,7 @@ import numpy as np
 
 from panel_rig import jsonio
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
-from panel_rig.config import ConfigError, PanelConfig, load_config
+from panel_rig.config import MAX_DURATION_S, ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path, rrd_path_problem
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Interrupted
@@ -42,7 +42,6 @@ def _config(args: argparse.Namespace) -> PanelConfig:
     return load_config(args.params, args.set or ())
 
 
-MAX_DURATION_S = 3600.0
 MAX_RANGE_POINTS = 10_000
 
 

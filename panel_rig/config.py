@@ -118,6 +118,10 @@ class _Spec:
         return value
 
 
+#: the longest duration or dwell any command takes, simulated s (README: bad input)
+MAX_DURATION_S = 3600.0
+
+
 def interval_rule(lo: float | None, hi: float | None, lo_open: bool = False, hi_open: bool = False
                   ) -> tuple[Callable[[float], bool], str]:
     """(test, rule text) of the interval lo..hi, either end open or absent (None)."""

@@ -900,8 +900,17 @@ def test_profile_steps_say_what_is_wrong():
     with pytest.raises(ProfileError, match=r"abort takes no value \(write '- abort'\)"):
         parse_profile([{"abort": 1}])
     assert parse_profile([{"dwell_s": "1e3"}])[0].arg == 1000.0
-    with pytest.raises(ProfileError, match=r"expected a finite number >= 0, got '1_0'"):
+    with pytest.raises(ProfileError, match=r"expected a number in \[0, 3600\] s, got '1_0'"):
         parse_profile([{"dwell_s": "1_0"}])
+    # what every command refuses, a profile refuses before it starts (the rig refused 150 m/s at run time and the
+    # operator exited 0; a 1e9 s dwell ran until it was killed)
+    for step, says in (({"airspeed": 150}, "step 1 (airspeed): expected a number in [0, 100] m/s"),
+                       ({"ramp": {"to": 120, "rate_mps2": 1.0}}, "step 1 (ramp.to): expected a number in [0, 100]"),
+                       ({"dwell_s": 1e9}, "step 1 (dwell_s): expected a number in [0, 3600] s")):
+        with pytest.raises(ProfileError) as refused:
+            parse_profile([step])
+        assert str(refused.value).startswith(says), refused.value
+    assert parse_profile([{"shaker": {"amplitude": 0.3}}])[0].arg == {"amplitude": 0.3}  # the frequency is kept
 
 
 def test_operator_stops_when_the_rig_restarts(ros_env: dict[str, str]) -> None:

@@ -34,7 +34,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from panel_rig.argparsing import OneLineParser
-from panel_rig.config import ConfigError, load_yaml_file, number_if_text
+from panel_rig.config import MAX_DURATION_S, ConfigError, load_yaml_file, number_if_text
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest
 from panel_rig.ros.messages import rig_status
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
@@ -95,12 +96,18 @@ class StepSummary:
     samples: list[tuple[float, float]] = field(default_factory=list, repr=False)
 
 
-def _number(i: int, key: str, v: Any, lo: float = -math.inf) -> float:
+def _number(i: int, key: str, v: Any, lo: float = -math.inf, hi: float = math.inf, unit: str = "") -> float:
     v = number_if_text(v)  # 1e3: text to YAML 1.1, a number to us (as in parameters files)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < lo:
-        rule = "a finite number" + ("" if lo == -math.inf else f" >= {lo:g}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        rule = ("a finite number" + ("" if lo == -math.inf else f" >= {lo:g}") if hi == math.inf
+                else f"a number in [{lo:g}, {hi:g}]{unit}")
         raise ProfileError(f"step {i + 1} ({key}): expected {rule}, got {v!r}")
     return float(v)
+
+
+def _airspeed(i: int, key: str, v: Any) -> float:
+    """A set-point every command takes (the rig refused 150 m/s at run time, after the profile had started)."""
+    return _number(i, key, v, 0.0, MAX_AIRSPEED_MPS, " m/s (the incompressible lattice holds to about Mach 0.3)")
 
 
 def parse_profile(doc: Any) -> list[Step]:
@@ -117,20 +124,23 @@ def parse_profile(doc: Any) -> list[Step]:
         if not isinstance(item, dict) or len(item) != 1:
             raise ProfileError(f"step {i + 1}: expected one of {KINDS} as a one-key mapping, got {item!r}")
         ((kind, arg),) = item.items()
-        if kind in ("airspeed", "force"):
-            steps.append(Step(kind, _number(i, kind, arg, 0.0 if kind == "airspeed" else -math.inf)))
-        elif kind == "dwell_s":
-            steps.append(Step(kind, _number(i, kind, arg, 0.0)))
+        if kind == "airspeed":
+            steps.append(Step(kind, _airspeed(i, kind, arg)))
+        elif kind == "force":
+            steps.append(Step(kind, _number(i, kind, arg)))
+        elif kind == "dwell_s":  # as every command's dwell (1e9 s ran until the operator was killed)
+            steps.append(Step(kind, _number(i, kind, arg, 0.0, MAX_DURATION_S, " s")))
         elif kind == "ramp":
             if not isinstance(arg, dict) or set(arg) != {"to", "rate_mps2"}:
                 raise ProfileError(f"step {i + 1}: ramp needs {{to: V, rate_mps2: r}}, got {arg!r}")
             rate = _number(i, "ramp.rate_mps2", arg["rate_mps2"], 0.0)
             if rate == 0:
                 raise ProfileError(f"step {i + 1}: ramp.rate_mps2 must be > 0")
-            steps.append(Step(kind, {"to": _number(i, "ramp.to", arg["to"], 0.0), "rate_mps2": rate}))
+            steps.append(Step(kind, {"to": _airspeed(i, "ramp.to", arg["to"]), "rate_mps2": rate}))
         elif kind == "shaker":
             if not isinstance(arg, dict) or not set(arg) <= {"amplitude", "frequency_hz"} or not arg:
-                raise ProfileError(f"step {i + 1}: shaker needs {{amplitude: A, frequency_hz: f}}, got {arg!r}")
+                raise ProfileError(f"step {i + 1}: shaker takes amplitude: A and/or frequency_hz: f (the other is "
+                                   f"kept), got {arg!r}")
             steps.append(Step(kind, {k: _number(i, f"shaker.{k}", v, 0.0) for k, v in arg.items()}))
         elif kind in ("abort", "reset") and arg is None:
             steps.append(Step(kind))
