@@ -212,6 +212,9 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
                         warn=result["onset"]["bracket_high_mps"] is not None)
 
 
+MAX_GAPS_SHOWN = 10  # gaps listed in the table (a line of thousands was 80 kB)
+
+
 def format_table(result: dict[str, Any]) -> str:
     """Human-readable plateau table and onset lines of an `analyze_bag` result."""
     from panel_rig.analysis.flutter_test import prediction_text
@@ -230,9 +233,11 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"flutter monitor: the panel fluttered at {f['airspeed_mps']:.3f} m/s "
                      f"(reported at t = {f['time_s']:.3f} s, rig time)")
     gaps = result.get("gaps") or []
-    if gaps:
-        lines.append("gaps in the recording (data lost, e.g. a chunk a recovery dropped; no plateau spans one): "
-                     + ", ".join(f"{g['from_s']:.2f}-{g['to_s']:.2f} s" for g in gaps))
+    if gaps:  # (a real-time node's overrun shifts its stamps too: a jump, not a reading lost)
+        shown = ", ".join(f"{g['from_s']:.2f}-{g['to_s']:.2f} s" for g in gaps[:MAX_GAPS_SHOWN])
+        more = f" and {len(gaps) - MAX_GAPS_SHOWN} more (JSON: gaps)" if len(gaps) > MAX_GAPS_SHOWN else ""
+        lines.append("gaps in the time stamps (a chunk a recovery dropped, or a real-time node's overrun that shifted "
+                     f"its clock; no plateau spans one): {shown}{more}")
     lines.append(head)
     for p in result["plateaus"]:
         lines.append(

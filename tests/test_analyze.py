@@ -628,6 +628,18 @@ def test_a_gap_in_the_recording_splits_plateaus_and_is_reported() -> None:
     result = analyze_series(t, 1e-4 * np.sin(2 * np.pi * 5.0 * t), u, {})
     assert result["gaps"] == [{"from_s": pytest.approx(11.998), "to_s": pytest.approx(14.0)}]
     assert result["sample_rate_hz"] == pytest.approx(500.0)
+    # publish_rate_hz set from 500 to 1 Hz and back, live: every slow interval was a "gap" (thousands, an 80 kB
+    # line); a gap is an interval over 3x both of its neighbours now
+    from panel_rig.analysis.bag_analysis import recording_gaps
+    from panel_rig.analyze_cli import MAX_GAPS_SHOWN, format_table
+
+    slow = np.r_[np.arange(0.0, 10.0, 1 / 500), np.arange(10.0, 40.0, 1.0), np.arange(40.0, 50.0, 1 / 500)]
+    assert recording_gaps(slow) == []
+    many = np.cumsum(np.where(np.arange(5000) % 200 == 199, 0.5, 1 / 500))  # a jump every 200 samples
+    gaps = recording_gaps(many)
+    assert len(gaps) == 25
+    text = format_table({**result, "bag": "b", "panel_length_m": 0.27, "panel_length_source": "bag", "gaps": gaps})
+    assert f"and {25 - MAX_GAPS_SHOWN} more (JSON: gaps)" in text and max(map(len, text.splitlines())) < 400
 
 
 def test_an_intact_mcap_of_other_messages_is_not_sent_to_recover(tmp_path: Path,

@@ -90,9 +90,15 @@ GAP_FACTOR = 3.0  # a sample interval this many times the median one is a gap in
 
 
 def gap_mask(t_s: np.ndarray) -> np.ndarray:
-    """Per sample interval (size n - 1): True where the recording has a gap (a chunk a recovered bag lost)."""
+    """Per sample interval (size n - 1): True where the recording has a gap (a chunk a recovered bag lost, or the
+    stamps of a real-time node shifted by an overrun): an interval over GAP_FACTOR times both of its neighbours.
+    Against the neighbours, not the run's median: a node whose publish_rate_hz was set from 500 to 1 Hz live had
+    thousands of "gaps", one per slow interval."""
     d = np.diff(np.asarray(t_s, dtype=float))
-    return d > GAP_FACTOR * float(np.median(d)) if d.size else np.zeros(0, bool)
+    if d.size < 2:
+        return np.zeros(d.size, bool)
+    neighbours = np.maximum(np.r_[d[1], d[:-1]], np.r_[d[1:], d[-2]])  # the larger of the interval's two neighbours
+    return d > GAP_FACTOR * neighbours
 
 
 def mean_dt(t_s: np.ndarray) -> float:
