@@ -828,7 +828,7 @@ def test_a_stopped_operator_winds_off_and_shows_what_it_played(fast_node: subpro
     the status was 130. Now: 0 m/s and the shaker off (confirmed by the rig), the steps played so far, 143."""
     reset(client)
     profile = tmp_path / "long.yaml"
-    profile.write_text("steps:\n  - airspeed: 6.0\n  - dwell_s: 100000.0\n  - airspeed: 2.0\n")
+    profile.write_text("steps:\n  - airspeed: 6.0\n  - dwell_s: 3600.0\n  - airspeed: 2.0\n")  # the longest dwell
     proc = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(profile), "--namespace", "/rig"],
                             env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
