@@ -35,6 +35,7 @@ def ros_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]
             mp.setenv("ROS_DOMAIN_ID", str(claim.domain_id))
             mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
             mp.setenv("ROS_LOG_DIR", str(tmp_path_factory.mktemp("ros_log")))
+            mp.setenv("PYTHONFAULTHANDLER", "1")  # a child's native crash prints where it was (the test shows its output)
             yield dict(os.environ)
     finally:
         claim.release()

@@ -496,7 +496,12 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
         [PYTHON, "-m", "panel_rig.ros.operator", "--profile", str(profile), "--namespace", "/rig"],
         env=ros_env, cwd=ROOT, capture_output=True, text=True, timeout=60, check=False,
     )
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    # the rig refused two commands: the table marks them, and the exit status says the profile did not run as
+    # written (it was 0)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "rig_operator: the profile did not run as written: it refused the commands of steps 8, 10 (see the table)")
+
     def num(text: str) -> float:
         return math.nan if text == "-" else float(text)
 
@@ -847,7 +852,7 @@ def test_a_stopped_operator_winds_off_and_shows_what_it_played(fast_node: subpro
 
 
 def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> None:
-    from panel_rig.ros.operator import StepSummary, annotate_aborts
+    from panel_rig.ros.operator import StepSummary, annotate_aborts, profile_problem
 
     steps = [StepSummary(1, "airspeed 11.2", 0.0, 0.1), StepSummary(2, "dwell_s 30.0", 0.1, 30.1),
              StepSummary(3, "airspeed 10.0", 30.1, 30.2, note="airspeed 10 rejected by the rig"),
@@ -862,6 +867,10 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
            StepSummary(2, "reset", 1.1, 1.2, note="reset")]
     annotate_aborts(own, {1.12: "operator abort"})  # the operator's own abort step already says it
     assert [s.note for s in own] == ["aborted at t = 1.120 s; airspeed ramping to 0", "reset"]
+    # the exit status: a rig that aborted by itself or refused a command is a failed profile; an abort step is not
+    assert profile_problem(steps) == ("the profile did not run as written: the rig aborted during step 2; "
+                                      "it refused the command of step 3 (see the table)")
+    assert profile_problem(own) is None
 
 
 def test_a_value_typed_with_dash_p_wins_over_the_params_files():

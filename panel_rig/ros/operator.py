@@ -78,6 +78,9 @@ class Step:
 #: readings stamped this much before the last one come from a restarted rig (its clock started again), not late
 RESTART_BACKSTEP_S = 1.0
 REFUSED = "rejected by the rig"  # a step's note when the rig echoed one of its commands on <topic>/rejected
+#: the note :func:`annotate_aborts` gives a command refused because the rig had aborted
+REFUSED_AFTER_ABORT = "rejected (rig aborted; reset to go on)"
+ABORTED_NOTE = "rig aborted at t = "  # the note of a step during which the rig aborted by itself (not an abort step)
 
 
 @dataclass
@@ -404,17 +407,38 @@ def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) ->
             continue
         hit = started[-1]
         if not own:
-            hit.note = "; ".join(x for x in (hit.note, f"rig aborted at t = {t_abort:.2f} s: {reason}") if x)
+            hit.note = "; ".join(x for x in (hit.note, f"{ABORTED_NOTE}{t_abort:.2f} s: {reason}") if x)
         for s in summary[summary.index(hit) + 1:]:
             if s.step.startswith("reset"):
                 break
             if REFUSED in s.note:
-                s.note = "rejected (rig aborted; reset to go on)"
+                s.note = REFUSED_AFTER_ABORT
 
 
 #: under the table when a step with a tip RMS has no frequency
 NO_FREQUENCY_NOTE = ("f_Hz -: too few periods arrived without a gap for a frequency (readings are best effort; "
                      "in fast mode a subscriber misses many); the bag's analysis has every reading")
+
+
+def profile_problem(summary: Sequence[StepSummary]) -> str | None:
+    """One line when the profile did not run as written (the rig aborted by itself, or refused a command), else
+    None: the operator then exits 1 (it exited 0, and a script could not tell a refused 150 m/s from a clean run).
+    An ``abort`` step of the profile is a command, not a problem."""
+    aborted = [s.index for s in summary if ABORTED_NOTE in s.note]
+    refused = [s.index for s in summary if REFUSED in s.note or REFUSED_AFTER_ABORT in s.note]
+    parts = []
+    if aborted:
+        parts.append(f"the rig aborted during step{'s' if len(aborted) > 1 else ''} {_indices(aborted)}")
+    if refused:
+        parts.append(f"it refused the command{'s' if len(refused) > 1 else ''} of step"
+                     f"{'s' if len(refused) > 1 else ''} {_indices(refused)}")
+    if not parts:
+        return None
+    return "the profile did not run as written: " + "; ".join(parts) + " (see the table)"
+
+
+def _indices(indices: Sequence[int]) -> str:
+    return ", ".join(str(i) for i in indices)
 
 
 def format_summary(summary: Sequence[StepSummary]) -> str:
@@ -479,6 +503,10 @@ def main(argv: Sequence[str] | None = None, *, prog: str = "rig_operator") -> in
         try:
             summary = node.play(steps)
             print(format_summary(summary))
+            problem = profile_problem(summary)
+            if problem:
+                print(f"{prog}: {problem}", file=sys.stderr)
+                code = 1
         except RigUnavailable as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             if node.played:

@@ -4,6 +4,7 @@ shut down however the program ends."""
 
 from __future__ import annotations
 
+import faulthandler
 import re
 import threading
 from collections.abc import Iterator, Sequence
@@ -20,6 +21,8 @@ def ros_session(args: Sequence[str], stop: threading.Event) -> Iterator[None]:
     """``rclpy.init(args)`` for the block; a signal sets ``stop`` (the program's spin loop ends between rclpy calls);
     the context is shut down on leaving (the program destroys its node before), then the previous handlers return,
     unless ``stop`` is set: the program is stopping, and ignores further signals until it exits."""
+    if not faulthandler.is_enabled():  # a native crash (rcl, the DDS) prints the Python stacks of every thread
+        faulthandler.enable()
     with signals_set(stop, restore_when_stopped=False):
         follow_parent()  # a child of a one-command session stops with it (its SIGTERM sets ``stop``)
         rclpy.init(args=list(args), signal_handler_options=SignalHandlerOptions.NO)
