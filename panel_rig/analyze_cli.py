@@ -213,6 +213,7 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
 
 
 MAX_GAPS_SHOWN = 10  # gaps listed in the table (a line of thousands was 80 kB)
+HELD_DEFLECTION_W_OVER_L = 1e-4  # a plateau's mean tip w/L named under the table above this (and above its RMS)
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -245,6 +246,11 @@ def format_table(result: dict[str, Any]) -> str:
             f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {p['dominant_frequency_hz']:>6.2f} "
             f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
         )
+    for p in result["plateaus"]:  # a force held on the shaker: the table's RMS is the motion about the deflection
+        mean = p.get("mean_tip_w_over_L") or 0.0
+        if abs(mean) > max(p["rms_tip_w_over_L"], HELD_DEFLECTION_W_OVER_L):
+            lines.append(f"plateau {p['index']}: the tip is held at w/L = {mean:.4g} on average (a static deflection, "
+                         "a force held on the shaker); rms_w/L is the motion about it")
     o = result["onset"]
 
     def num(x: float | None) -> str:
@@ -263,7 +269,10 @@ def format_table(result: dict[str, Any]) -> str:
                      + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
                      + f"; extrapolated from decay rates: {extrapolated}")
     else:
-        lines.append(f"flutter onset bracket: {num(o['bracket_low_mps'])} .. {num(o['bracket_high_mps'])} m/s; "
+        low, high = num(o["bracket_low_mps"]), num(o["bracket_high_mps"])
+        if low == high:  # two plateaus at one nominal airspeed ("9.00 .. 9.00"): the digits that tell them apart
+            low, high = f"{o['bracket_low_mps']:.3f}", f"{o['bracket_high_mps']:.3f}"
+        lines.append(f"flutter onset bracket: {low} .. {high} m/s; "
                      f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
     ft = result.get("flutter_test")
     if ft and ft["test_points"]:

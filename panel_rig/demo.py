@@ -20,7 +20,14 @@ from panel_rig import jsonio
 from panel_rig.argparsing import OneLineParser
 from panel_rig.domains import private_domain_id
 from panel_rig.paths import make_output_dir
-from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, module_command, sigterm_exits, spawn, stop
+from panel_rig.processes import (
+    INTERRUPTED_STATUS,
+    RIG_STARTUP_TIMEOUT_S,
+    module_command,
+    sigterm_exits,
+    spawn,
+    stop,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the structure the demo tunnel runs: the exact (elastica) panel, the one that behaves like a real panel at LCO
@@ -52,7 +59,8 @@ def _analyze(bag: Path, out: Path) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the demo session; 0 on success (an abort of the rig is reported, not a failure)."""
+    """Run the demo session; 0 on success (an abort of the rig is reported, not a failure), 130 when stopped by
+    Ctrl-C (143 by SIGTERM)."""
     ap = OneLineParser(prog="panel-rig demo", description=__doc__.splitlines()[0])
     ap.add_argument("--profile", default=str(ROOT / "config" / "staircase.yaml"))
     ap.add_argument("--out", default="out/demo", help="directory for the .rrd, plots and logs")
@@ -89,6 +97,7 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
               "--timeout", "30", "--startup-timeout", f"{RIG_STARTUP_TIMEOUT_S:g}"]
     node = operator = None
     op_out = op_err = ""
+    stopped: BaseException | None = None
     print("panel-rig demo: starting the rig node and the operator (a first run compiles the physics kernels: "
           "about half a minute)", file=sys.stderr, flush=True)
     try:
@@ -101,13 +110,13 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
             op_out, op_err = operator.communicate(timeout=OPERATOR_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             op_err = f"the operator did not finish within {OPERATOR_TIMEOUT_S:g} s (wall)"
-    except BaseException:  # Ctrl-C, SIGTERM: the session's children do not outlive it
-        print(f"panel-rig demo: stopped; the recording so far is in {bag_dir}, the node log {node_log}",
-              file=sys.stderr)
-        raise
+    except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C, SIGTERM: the session's children do not outlive it
+        stopped = exc
     finally:
         op_code = stop(operator, NODE_STOP_TIMEOUT_S) if operator is not None else None
         node_code = stop(node, NODE_STOP_TIMEOUT_S) if node is not None else None
+    if stopped is not None:
+        return _stopped(stopped, operator, bag_dir, node_log)
     wall_s = time.monotonic() - t0
     log_text = node_log.read_text(errors="replace")
     aborts = [line.split("]: ", 1)[-1] for line in log_text.splitlines() if "rig aborted" in line]
@@ -130,8 +139,31 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
         print(failure, file=sys.stderr)
     elif table is not None:
         print(f"\nAnalysis of {bag.name} (PNGs and analysis.json in {out}):\n{table}")
-    ok = op_code == 0 and node_code == 0 and bag is not None and table is not None
+    from panel_rig.ros.operator import NOT_AS_WRITTEN  # (rclpy: loaded only once the session ran)
+
+    # an abort of the rig (or a command it refused) is reported above, not a failure of the demo
+    played = op_code == 0 or (op_code == 1 and NOT_AS_WRITTEN in op_err)
+    ok = played and node_code == 0 and bag is not None and table is not None
     return 0 if ok else 1
+
+
+def _stopped(exc: BaseException, operator: subprocess.Popen | None, bag_dir: Path, node_log: Path) -> int:
+    """A stopped session (its children stopped already): the steps the operator played, one line, the status.
+    It printed two lines and lost the operator's table, which its Ctrl-C had printed into the pipe."""
+    if operator is not None:
+        try:  # the rest of what the stopped operator wrote (its table and its stop line)
+            op_out, op_err = operator.communicate(timeout=NODE_STOP_TIMEOUT_S)
+        except (subprocess.TimeoutExpired, ValueError, OSError):
+            op_out = op_err = ""
+        if op_out.strip():
+            print("What the operator played before the stop (rig time):\n" + op_out.strip())
+        said = [line.removeprefix("rig_operator: ") for line in op_err.splitlines() if "stopped at step" in line]
+        if said:
+            print(f"panel-rig demo: operator {said[-1]}", file=sys.stderr)
+    print(f"panel-rig demo: stopped; the recording so far is in {bag_dir}, the node log {node_log}", file=sys.stderr)
+    if isinstance(exc, SystemExit):
+        raise exc
+    return INTERRUPTED_STATUS
 
 
 if __name__ == "__main__":

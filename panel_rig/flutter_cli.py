@@ -217,6 +217,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     if viz is not None:
         rig.sinks.append(ShapeSink(viz, rig, cfg))
     history: list[tuple[float, Any, Any]] = []
+    res = FlutterTestResult()
+    measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
 
     def record_monitor(point: Any, decision: Any, fluttered: bool = False) -> None:
         """The monitor's message of a point, as the node records it (with the plateau's sim_time_s)."""
@@ -245,8 +247,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                 progress(flutter_line(len(res.points) + 1, airspeed_mps))
 
     with contextlib.ExitStack() as after_stop:
-        res, stopped = FlutterTestResult(), None
-        measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
+        stopped = None
         try:
             # SIGTERM leaves through the clean-up below as Ctrl-C does; either waits for the end of the block of readings
             # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)

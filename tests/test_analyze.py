@@ -601,6 +601,41 @@ def test_a_free_decay_with_the_wind_off_is_no_lco() -> None:
     assert statuses == [(12, "growing"), (0, "decaying")], statuses
 
 
+def test_a_held_force_s_static_deflection_is_no_lco() -> None:
+    """A force held on the shaker bends the panel to a static deflection: the plateau's RMS included that mean
+    (0.01 L), above the LCO threshold, and a panel at rest under the force was "lco". The RMS, the envelope and
+    the status are now those of the motion about the mean (as the operator's table has them); the mean is
+    reported beside them."""
+    from panel_rig.analysis.bag_analysis import analyze_series
+
+    t = np.arange(0.0, 20.0, 1.0 / 500.0)
+    u = np.full(t.size, 8.0)
+    rng = np.random.default_rng(3)
+    w = np.where(t < 5.0, 0.0, 0.01 * (1.0 - np.exp(-3.0 * (t - 5.0)) * np.cos(2 * np.pi * 17.0 * (t - 5.0))))
+    w = w + 1e-5 * rng.standard_normal(t.size)  # the turbulence's small random response about it
+    (held,) = analyze_series(t, w, u, {"shaker/force_cmd": [(5.0, 0.3)]})["plateaus"]
+    assert held["status"] in ("decaying", "stationary"), held
+    assert held["mean_tip_w_over_L"] == pytest.approx(0.01, rel=1e-3)
+    assert held["rms_tip_w_over_L"] == pytest.approx(1e-5, rel=0.1)  # about the mean
+    assert held["peak_tip_w_over_L"] == pytest.approx(0.01, rel=1e-2)  # the largest deflection, mean included
+    # an LCO about a held deflection is still one, its RMS that of the cycle
+    lco = 0.01 + 0.05 * np.sin(2 * np.pi * 17.0 * t)
+    (cycle,) = analyze_series(t, lco, u, {"shaker/force_cmd": [(0.5, 0.3)]})["plateaus"]
+    assert cycle["status"] == "lco" and cycle["rms_tip_w_over_L"] == pytest.approx(0.05 / np.sqrt(2), rel=1e-2)
+    # the table names the held deflection (its rms_w/L column is the motion about it); and a bracket between two
+    # plateaus at one nominal airspeed shows the digits that tell them apart ("9.00 .. 9.00")
+    from panel_rig.analyze_cli import format_table
+
+    onset = {"bracket_low_mps": 8.996, "bracket_high_mps": 9.004, "extrapolated_mps": None,
+             "extrapolation_points": [], "interpolated_mps": None}
+    table = format_table({"bag": "b", "duration_s": 20.0, "samples": t.size, "panel_length_m": 0.27,
+                          "panel_length_source": "parameters", "plateaus": [{**held, "index": 1},
+                                                                             {**cycle, "index": 2}], "onset": onset})
+    assert "plateau 1: the tip is held at w/L = 0.01 on average" in table, table
+    assert "plateau 2:" not in table  # an LCO about a small mean: no line
+    assert "flutter onset bracket: 8.996 .. 9.004 m/s" in table, table
+
+
 def test_instantaneous_airspeed_steps_are_separate_plateaus() -> None:
     """tunnel.time_constant_s = 0 (allowed): the steady windows on both sides of each step joined 5, 6 and 7 m/s
     into one run, of which only the last level survived."""

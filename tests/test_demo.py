@@ -40,7 +40,7 @@ def test_a_stopped_demo_stops_its_children_and_closes_the_bag(tmp_path: Path, ho
             proc.kill()
         else:
             os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
+        out_text, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -52,6 +52,12 @@ def test_a_stopped_demo_stops_its_children_and_closes_the_bag(tmp_path: Path, ho
     assert (bag / "metadata.yaml").exists()  # closed, not a recording to recover
     if how != "sigkill":  # there the node and the operator stop at once, each on its own
         assert _commands(read_bag, bags)[-1] == 0.0, "the wind was not turned off"  # the operator's wind-off
+        # the steps played before the stop, and one line on the stop (it printed two and lost the operator's table)
+        assert "panel-rig demo: operator stopped at step" in err and "panel-rig: interrupted" not in err, err
+        at = int(err.split("operator stopped at step ", 1)[1].split()[0])
+        if at > 1:  # the steps before it (the stop came once the first command was recorded: mostly in step 2)
+            assert "What the operator played before the stop" in out_text and "airspeed 8.0" in out_text, out_text
+        assert err.strip().splitlines()[-1].startswith("panel-rig demo: stopped; the recording so far is in"), err
 
 
 def _commands(read_bag, bags: Path) -> list[float]:

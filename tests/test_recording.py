@@ -712,10 +712,10 @@ def test_modal_rows_are_cut_to_the_shortest() -> None:
     from panel_rig.recording.series import _ModalRows
 
     rows = _ModalRows()
-    assert rows.matrix().shape == (0, 0)
+    assert rows.rows().shape == (0, 0)
     for stamp_ns, position in ((3, [1.0, 2.0, 3.0]), (1, [4.0, 5.0]), (2, [6.0, 7.0, 8.0, 9.0])):
         rows.append(stamp_ns, position)
-    assert rows.matrix().tolist() == [[1.0, 2.0], [4.0, 5.0], [6.0, 7.0]]
+    assert rows.rows().tolist() == [[1.0, 2.0], [4.0, 5.0], [6.0, 7.0]]
     times_s, q = rows.sorted(t0_ns=1)  # read in the file's order, sorted by time
     assert times_s.tolist() == [0.0, 1e-9, 2e-9] and q.tolist() == [[4.0, 5.0], [6.0, 7.0], [1.0, 2.0]]
 

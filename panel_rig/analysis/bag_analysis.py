@@ -14,7 +14,9 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
 * **Free response**: the part of a plateau after the last shaker command inside it (a tap: force on,
   force off), or the whole plateau if that leaves less than ``min_free_s``.
 * **Metrics window**: the second half of the free response, at most its last ``measure_s`` (5 s, as
-  ``panel-rig lco``). RMS and peak tip w/L and the dominant frequency are taken there.
+  ``panel-rig lco``). The mean tip w/L (a static deflection under a held shaker force), the RMS about it, the peak
+  |w/L| (mean included) and the dominant frequency are taken there; the envelope and the status below are those of
+  the motion about that mean.
 * **Growth rate** (1/s): least-squares slope of log(envelope), the envelope being the RMS of
   consecutive windows of ``max(envelope_window_s, 4 periods)``; windows below ``1e-3`` of the
   largest are left out (numerical floor). ``growth_rate_per_s`` over the free response,
@@ -55,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_rms
+from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_std
 
 SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
 Commands = dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
@@ -173,9 +175,10 @@ def cut_at_setpoint_changes(t_s: np.ndarray, airspeed_mps: np.ndarray, airspeed_
 
 # ---------------------------------------------------------------------------------- metrics
 def envelope_rate_per_s(x: np.ndarray, dt_s: float, window_s: float, floor_ratio: float = 1e-3) -> float:
-    """Slope of log(windowed RMS) vs time, 1/s; windows below floor_ratio of the largest dropped."""
+    """Slope of log(windowed RMS about each window's mean) vs time, 1/s; windows below floor_ratio of the largest
+    dropped."""
     n_w = max(2, int(round(window_s / dt_s)))
-    env = window_rms(np.asarray(x, dtype=float), n_w)
+    env = window_std(np.asarray(x, dtype=float), n_w)
     if env.size < 3 or not np.any(env > 0):
         return 0.0
     t = (np.arange(env.size) + 0.5) * n_w * dt_s
@@ -253,15 +256,19 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     free = w[j0:i1]
     half = free[free.size // 2 :]
     late = half[-max(16, int(round(crit.measure_s / dt))) :]
+    # the motion about its mean: a force held on the shaker bends the panel to a static deflection, and an RMS with
+    # that mean in it made a panel at rest under the force an "lco" (the envelope's windows each about their own
+    # mean: an LCO's own offset, the exact panel's, is no envelope either)
+    mean = float(np.mean(late))
     freq = dominant_frequency_hz(late, mean_dt(t[i1 - late.size : i1]))
     win_s = max(crit.envelope_window_s, 4.0 / freq) if freq > 0 else crit.envelope_window_s
     win_n = max(2, int(round(win_s / dt)))  # samples per envelope window
-    env = window_rms(free, win_n)
+    env = window_std(free, win_n)
     rate = envelope_rate_per_s(free, dt, win_s)
     rate_late = envelope_rate_per_s(late, dt, min(win_s, late.size * dt / 3))
-    rms_late = rms(late)
+    rms_late = rms(late - mean)
     third = max(1, late.size // 3)
-    sustain = rms(late[-third:]) / max(rms(late[:third]), 1e-300)
+    sustain = rms(late[-third:] - np.mean(late[-third:])) / max(rms(late[:third] - np.mean(late[:third])), 1e-300)
     u = airspeed_mps[i0:i1]
     status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
                      tapped=f0 > t0, wind_off=float(np.mean(u)) <= crit.min_extrapolation_airspeed_mps)
@@ -269,7 +276,7 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),
         "airspeed_mps": float(np.mean(u)), "airspeed_std_mps": float(np.std(u)),
-        "rms_tip_w_over_L": rms_late, "peak_tip_w_over_L": float(np.max(np.abs(late))),
+        "rms_tip_w_over_L": rms_late, "mean_tip_w_over_L": mean, "peak_tip_w_over_L": float(np.max(np.abs(late))),
         "dominant_frequency_hz": freq, "growth_rate_per_s": rate, "late_growth_rate_per_s": rate_late,
         "onset_growth_rate_per_s": (onset_growth_rate_per_s(env, win_n * dt, crit)
                                     if status == "lco" else None),

@@ -36,6 +36,13 @@ def window_rms(x: np.ndarray, n_window: int) -> np.ndarray:
     return np.sqrt(np.mean(np.square(x[: m * n_window].reshape(m, n_window)), axis=1))
 
 
+def window_std(x: np.ndarray, n_window: int) -> np.ndarray:
+    """RMS about each window's own mean, of consecutive non-overlapping windows of n_window samples: the envelope
+    of an oscillation about a mean that is not zero (a static deflection, or the cycle's own offset)."""
+    m = x.size // n_window
+    return np.std(x[: m * n_window].reshape(m, n_window), axis=1)
+
+
 def steady_onset_s(x: np.ndarray, dt_s: float, window_s: float = 1.0, rel_tol: float = 0.03,
                    n_stable: int = 3) -> float | None:
     """Start time of the steady part: the first window from which n_stable consecutive 1 s windows have

@@ -173,8 +173,8 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     )
 
 
-class _Series:
-    """One scalar reading per message: stamps (ns) and values in flat arrays."""
+class _Stamped:
+    """Readings with their stamps (ns) in flat arrays, taken in file order and put in time order once at the end."""
 
     def __init__(self) -> None:
         self.stamps_ns, self.values = array("q"), array("d")
@@ -182,18 +182,29 @@ class _Series:
     def __len__(self) -> int:
         return len(self.stamps_ns)
 
+    def first_ns(self) -> int | None:
+        return min(self.stamps_ns) if self.stamps_ns else None
+
+    def rows(self) -> np.ndarray:
+        """The readings, one row (or value) per stamp, in file order."""
+        raise NotImplementedError
+
+    def sorted(self, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """(times s from ``t0_ns``, the readings), in time order (stable)."""
+        stamps = np.frombuffer(self.stamps_ns, dtype=np.int64)
+        order = np.argsort(stamps, kind="stable")
+        return (stamps[order] - t0_ns) * 1e-9, self.rows()[order]
+
+
+class _Series(_Stamped):
+    """One scalar reading per message."""
+
     def append(self, stamp_ns: int, value: float) -> None:
         self.stamps_ns.append(stamp_ns)
         self.values.append(value)
 
-    def first_ns(self) -> int | None:
-        return min(self.stamps_ns) if self.stamps_ns else None
-
-    def sorted(self, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times s from ``t0_ns``, values), in time order (stable)."""
-        stamps = np.frombuffer(self.stamps_ns, dtype=np.int64)
-        order = np.argsort(stamps, kind="stable")
-        return (stamps[order] - t0_ns) * 1e-9, np.frombuffer(self.values, dtype=float)[order]
+    def rows(self) -> np.ndarray:
+        return np.frombuffer(self.values, dtype=float)
 
 
 def _take_aborts(msg: Any, aborts: list[tuple[float, str]]) -> None:
@@ -224,40 +235,28 @@ def _take_monitor_flutter(msg: Any, t_s: float, out: list[tuple[float, float]]) 
             out.append((t if math.isfinite(t) else t_s, u))
 
 
-class _ModalRows:
+class _ModalRows(_Stamped):
     """The modal_states positions, row after row, in one flat float array; rows of different lengths (not written
     by the rig) are cut to the shortest, padded with NaN while reading."""
 
     def __init__(self) -> None:
-        self.stamps_ns = array("q")
-        self.values = array("d")
-        self.rows = 0
+        super().__init__()
         self.width = -1  # the first row's length: the stride of ``values``
         self.shortest = -1
 
-    def first_ns(self) -> int | None:
-        return min(self.stamps_ns) if self.stamps_ns else None
-
-    def sorted(self, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """(times s from ``t0_ns``, the matrix's rows), in time order (stable)."""
-        stamps = np.frombuffer(self.stamps_ns, dtype=np.int64)
-        order = np.argsort(stamps, kind="stable")
-        return (stamps[order] - t0_ns) * 1e-9, self.matrix()[order]
-
     def append(self, stamp_ns: int, position: Any) -> None:
-        self.stamps_ns.append(stamp_ns)
         n = len(position)
-        if self.rows == 0:
+        if not self.stamps_ns:
             self.width = self.shortest = n
+        self.stamps_ns.append(stamp_ns)
         self.values.extend(list(position[: self.width]) + [math.nan] * (self.width - n))
         self.shortest = min(self.shortest, n)
-        self.rows += 1
 
-    def matrix(self) -> np.ndarray:
+    def rows(self) -> np.ndarray:
         """(rows, shortest row length)."""
-        if self.rows == 0:
+        if not self.stamps_ns:
             return np.zeros((0, 0))
-        return np.frombuffer(self.values, dtype=float).reshape(self.rows, self.width)[:, : self.shortest]
+        return np.frombuffer(self.values, dtype=float).reshape(len(self.stamps_ns), self.width)[:, : self.shortest]
 
 
 def _interp(t_s: np.ndarray, times_s: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -81,6 +81,7 @@ REFUSED = "rejected by the rig"  # a step's note when the rig echoed one of its 
 #: the note :func:`annotate_aborts` gives a command refused because the rig had aborted
 REFUSED_AFTER_ABORT = "rejected (rig aborted; reset to go on)"
 ABORTED_NOTE = "rig aborted at t = "  # the note of a step during which the rig aborted by itself (not an abort step)
+NOT_AS_WRITTEN = "the profile did not run as written"  # how the exit-1 line of such a run begins
 
 
 @dataclass
@@ -434,7 +435,7 @@ def profile_problem(summary: Sequence[StepSummary]) -> str | None:
                      f"{'s' if len(refused) > 1 else ''} {_indices(refused)}")
     if not parts:
         return None
-    return "the profile did not run as written: " + "; ".join(parts) + " (see the table)"
+    return f"{NOT_AS_WRITTEN}: " + "; ".join(parts) + " (see the table)"
 
 
 def _indices(indices: Sequence[int]) -> str:
