@@ -30,6 +30,38 @@ def dominant_frequency_hz(x: np.ndarray, dt_s: float) -> float:
     return float(k / (x.size * dt_s))
 
 
+#: the largest sidelobe of a gapped record's spectral window (the Hann-windowed spectrum of its pattern of kept
+#: readings, against its main lobe) that still leaves the largest peak to the signal: a pattern repeating near a
+#: period of the signal (readings only around every other crossing: 0.96) could pass an alias for it. The fast
+#: operator's bursts of readings reach 0.51
+MAX_ALIAS_SIDELOBE = 0.75
+
+
+def gapped_dominant_frequency_hz(t_s: np.ndarray, x: np.ndarray) -> float:
+    """:func:`dominant_frequency_hz` of readings with gaps (stamps ``t_s``, s, increasing): the readings on their
+    own time grid (the mean interval of the contiguous ones), the missing ones at zero after the mean is removed
+    (the periodogram Lomb-Scargle would compute for such a grid, at an FFT's cost). NaN for fewer than 8
+    readings, or when the pattern of missing readings could pass an alias for the peak (its spectral window has a
+    sidelobe above MAX_ALIAS_SIDELOBE of the main lobe)."""
+    t, x = np.asarray(t_s, float), np.asarray(x, float)
+    if t.size < 8:
+        return float("nan")
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return float("nan")
+    dt = float(np.mean(steps[steps < 1.5 * np.median(steps)]))  # the reading interval, without the gaps
+    idx = np.round((t - t[0]) / dt).astype(np.int64)
+    kept = np.zeros(int(idx[-1]) + 1)
+    kept[idx] = 1.0
+    filled = np.zeros(kept.size)
+    filled[idx] = x - np.mean(x)
+    window = np.abs(np.fft.rfft(kept * np.hanning(kept.size)))
+    if window.size > 3 and window[3:].max() > MAX_ALIAS_SIDELOBE * window[0]:  # beyond the Hann main lobe
+        return float("nan")
+    return dominant_frequency_hz(filled, dt)
+
+
 def window_rms(x: np.ndarray, n_window: int) -> np.ndarray:
     """RMS of consecutive non-overlapping windows of n_window samples."""
     m = x.size // n_window

@@ -33,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
+from panel_rig.analysis.signals import gapped_dominant_frequency_hz
 from panel_rig.argparsing import OneLineParser
 from panel_rig.config import MAX_DURATION_S, ConfigError, load_yaml_file, number_if_text
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
@@ -164,12 +165,10 @@ def load_profile(path: str | Path) -> list[Step]:
     return parse_profile(doc)
 
 
-#: the longest gap between two readings, in periods measured across it, that cannot hide a mean crossing: a
-#: crossing goes unseen only inside a gap that also holds the opposite crossing (about half a period of a
-#: sinusoid), and a period with an up-crossing hidden in it is measured twice as long
-MAX_GAP_PERIODS = 0.25
-#: periods (between consecutive up-crossings, with no gap that could hide one) a frequency is taken from
-MIN_PERIODS = 3
+#: periods the second half of a step's readings must span for a frequency: the spectrum's resolution is a period
+#: over the span, and a shaker tap's 0.5 s step (under 6 periods at 23 Hz in its second half, with gaps) read
+#: 13-26 Hz
+MIN_PERIODS = 8
 #: the operator's reading queue per topic (best effort): in fast mode the node publishes readings faster than the
 #: operator takes them, and what it takes at a turn is the newest this many, contiguous (the sensor profile's 5
 #: readings, 10 ms at 500 Hz, spanned a fraction of a 17 Hz period)
@@ -177,28 +176,23 @@ READINGS_DEPTH = 100
 
 
 def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
-    """(RMS about the mean, mean-crossing frequency) of the second half of (t, w) samples. The readings are best
-    effort and a busy operator misses many in fast mode: a missed crossing doubles a period (the demo's 17 Hz LCO
-    read 5.4 Hz, an 8 Hz shaker 5.26 Hz), so a period between consecutive up-crossings counts only if no gap
-    between readings inside it is as long as MAX_GAP_PERIODS of it; the frequency is NaN with fewer than
-    MIN_PERIODS such periods."""
+    """(RMS about the mean, dominant frequency) of the second half of (t, w) samples. The readings are best
+    effort and a busy operator misses many in fast mode (bursts of its queue's newest, then a gap): the frequency is
+    the spectrum's peak of the readings on their own time grid, the missing ones left out
+    (:func:`~panel_rig.analysis.signals.gapped_dominant_frequency_hz`), as `panel-rig analyze` takes it from the
+    bag's every reading. The mean-crossing count it replaces read the demo's 16.3 Hz LCO as 12.2 Hz when a gap hid
+    a crossing, and gave none for half the LCO's steps. NaN when the readings span fewer than MIN_PERIODS periods
+    or miss them in a pattern that could alias."""
     if len(samples) < 8:
         return math.nan, math.nan
     arr = np.asarray(samples, dtype=float)
-    arr = arr[np.argsort(arr[:, 0])]
+    arr = arr[np.argsort(arr[:, 0], kind="stable")]
     arr = arr[arr[:, 0] >= arr[0, 0] + 0.5 * (arr[-1, 0] - arr[0, 0])]
     t, w = arr[:, 0], arr[:, 1] - arr[:, 1].mean()
     rms = float(np.sqrt(np.mean(w**2)))
-    ups = np.nonzero((w[:-1] < 0) & (w[1:] >= 0))[0]
-    if ups.size < 2:
+    freq = gapped_dominant_frequency_hz(t, w)
+    if not freq * (t[-1] - t[0]) >= MIN_PERIODS:
         return rms, math.nan
-    t_up = t[ups] + (t[ups + 1] - t[ups]) * -w[ups] / (w[ups + 1] - w[ups])  # interpolated crossing times
-    periods = np.diff(t_up)
-    # the longest gap between readings from each crossing's straddling pair to the next one's
-    gap = np.diff(t)
-    widest = np.array([gap[a : b + 1].max() for a, b in zip(ups[:-1], ups[1:])])
-    clean = periods[(periods > 0) & (widest < MAX_GAP_PERIODS * periods)]
-    freq = clean.size / clean.sum() if clean.size >= MIN_PERIODS else math.nan
     return rms, float(freq)
 
 
@@ -417,8 +411,9 @@ def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) ->
 
 
 #: under the table when a step with a tip RMS has no frequency
-NO_FREQUENCY_NOTE = ("f_Hz -: too few periods arrived without a gap for a frequency (readings are best effort; "
-                     "in fast mode a subscriber misses many); the bag's analysis has every reading")
+NO_FREQUENCY_NOTE = ("f_Hz -: the readings that arrived span too few periods, or miss them in a pattern that could "
+                     "alias (readings are best effort; in fast mode a subscriber misses many); the bag's analysis has "
+                     "every reading")
 
 
 def profile_problem(summary: Sequence[StepSummary]) -> str | None:
