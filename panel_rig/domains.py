@@ -10,6 +10,7 @@ started its node). :func:`claim_domain_id` skips both and holds the lock for the
 
 from __future__ import annotations
 
+import atexit
 import errno
 import fcntl
 import os
@@ -48,13 +49,20 @@ def domain_in_use(domain_id: int) -> bool:
 
 @dataclass
 class DomainClaim:
-    """A domain id this process holds: its lock file stays locked until :meth:`release` or the process ends."""
+    """A domain id this process holds: its lock file stays locked until :meth:`release` or the process ends.
+    Released, the file is removed (a suite run left ~100 of them in /tmp)."""
 
     domain_id: int
     _fd: int | None = field(default=None, repr=False)
 
     def release(self) -> None:
         if self._fd is not None:
+            path = lock_path(self.domain_id)
+            # removed while still locked, and only if it is still the file this claim locked: a process that opens
+            # the path in between finds, once it has the lock, that its file is gone (:func:`_lock` checks) and
+            # retries on a new one
+            if _same_file(self._fd, path):
+                path.unlink(missing_ok=True)
             os.close(self._fd)  # closing the descriptor drops the lock
             self._fd = None
 
@@ -62,16 +70,42 @@ class DomainClaim:
 _HELD: list[DomainClaim] = []  # the claims of private_domain_id(): held until the process ends
 
 
+def _release_held() -> None:
+    while _HELD:
+        _HELD.pop().release()
+
+
+atexit.register(_release_held)
+
+
+def lock_path(domain_id: int) -> Path:
+    """The domain's lock file."""
+    return Path(tempfile.gettempdir()) / f"panel_rig_ros_domain_{domain_id}.lock"
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open as ``fd``."""
+    try:
+        on_disk = os.stat(path)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (held.st_dev, held.st_ino) == (on_disk.st_dev, on_disk.st_ino)
+
+
 def _lock(domain_id: int) -> int | None:
     """The domain's lock file, locked by this process (its descriptor), or None if another process holds it."""
-    path = Path(tempfile.gettempdir()) / f"panel_rig_ros_domain_{domain_id}.lock"
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        return None
-    return fd
+    path = lock_path(domain_id)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            return None
+        if _same_file(fd, path):
+            return fd
+        os.close(fd)  # its holder released and removed it while this process waited: a new file
 
 
 def claim_domain_id(lo: int, hi: int) -> DomainClaim:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import errno
 import socket
 
-from panel_rig.domains import TEST_DOMAINS, claim_domain_id, discovery_port, domain_in_use
+from panel_rig.domains import TEST_DOMAINS, claim_domain_id, discovery_port, domain_in_use, lock_path
 
 
 def test_a_claimed_domain_is_not_claimed_twice_and_is_free_again_after_release() -> None:
@@ -60,3 +60,53 @@ def test_a_port_the_host_refuses_for_another_reason_leaves_the_lock_file_to_deci
         assert claim_domain_id(held.domain_id, held.domain_id)._fd is None
     finally:
         held.release()
+
+
+def test_a_released_claim_removes_its_lock_file_and_a_waiting_claim_takes_a_new_one() -> None:
+    """Released claims left their lock files in /tmp (one per domain ever used: ~100 after a suite run). A
+    released claim removes its file; a claim that opened the old file before the removal sees it is gone and
+    locks a new one, so two processes never each hold a lock on a different file of the same domain."""
+    import fcntl
+    import os
+
+    held = claim_domain_id(*TEST_DOMAINS)
+    d, path = held.domain_id, lock_path(held.domain_id)
+    assert path.exists()
+    late = os.open(path, os.O_RDWR)  # another process opened the file, and waits for the lock
+    try:
+        held.release()
+        assert not path.exists()
+        fcntl.flock(late, fcntl.LOCK_EX | fcntl.LOCK_NB)  # it gets the lock, of a file no longer in /tmp
+        again = claim_domain_id(d, d)  # and a claim now locks a new file: the removed one holds nobody off
+        try:
+            assert again._fd is not None and path.exists()
+        finally:
+            again.release()
+    finally:
+        os.close(late)
+    assert not path.exists()
+
+
+def test_a_claim_whose_file_was_removed_before_it_locked_it_locks_a_new_one(monkeypatch) -> None:
+    """Between a claim's open and its lock the holder may release (remove) the file: the claim then holds a lock on
+    a file no other process can find. It checks, and locks a file at the path instead."""
+    import fcntl
+
+    from panel_rig import domains
+
+    d = claim_domain_id(*TEST_DOMAINS)
+    d.release()
+    path, real_flock, calls = lock_path(d.domain_id), fcntl.flock, []
+
+    def holder_releases_first(fd: int, op: int) -> None:
+        calls.append(fd)
+        if len(calls) == 1:
+            path.unlink()  # the holder's release, just before this claim's lock
+        real_flock(fd, op)
+
+    monkeypatch.setattr(domains.fcntl, "flock", holder_releases_first)
+    claim = claim_domain_id(d.domain_id, d.domain_id)
+    try:
+        assert len(calls) == 2 and claim._fd is not None and domains._same_file(claim._fd, path)
+    finally:
+        claim.release()
