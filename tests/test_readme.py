@@ -130,7 +130,10 @@ def test_readme_command_works_as_written(cmd: str, scratch: Path, env: dict[str,
                 rig.send_signal(signal.SIGINT)
                 rig.wait(30)
             out = done.stdout + done.stderr
-            assert done.returncode == 0, out[-2000:]
+            # against the default (full) node the staircase's flutter reaches the wall and the rig aborts, as the
+            # README says: exit 1 with the line saying the profile did not run as written
+            assert done.returncode == 0 or (done.returncode == 1 and "the profile did not run as written: the rig "
+                                            "aborted during step" in done.stderr), out[-2000:]
             assert "unrecognized arguments" not in out and "Traceback" not in out, out[-2000:]
             return
         code, out = _run_service(words, SERVICES[sub], scratch, env)
