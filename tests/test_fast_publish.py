@@ -355,9 +355,11 @@ def test_late_real_time_tick_publishes_the_samples_it_owes(ros_env: dict[str, st
 
 
 def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[str, str], tmp_path: Path) -> None:
-    """A node recording with `rerun:=connect:URL` where no viewer listens: closing it (what SIGINT does) closes the
-    bag first and then ends, reporting the undelivered viewer data; it used to wait forever in rerun's flush, with
-    the bag still open (a bag without its summary, for `panel-rig bag recover`)."""
+    """A node recording with `rerun:=connect:URL` whose viewer went away after the start (a node is refused one
+    where none listens): closing it (what SIGINT does) closes the bag first and then ends, reporting the
+    undelivered viewer data; it used to wait forever in rerun's flush, with the bag still open (a bag without its
+    summary, for `panel-rig bag recover`)."""
+    import socket
     import threading
 
     import rclpy
@@ -370,9 +372,14 @@ def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    viewer = socket.socket()
+    viewer.bind(("127.0.0.1", 0))
+    viewer.listen(1)
+    url = f"rerun+http://127.0.0.1:{viewer.getsockname()[1]}/proxy"
     node = RigNode(context=ctx, parameter_overrides=[
         Parameter("fast", value=True), Parameter("model.variant", value="full"), Parameter("record", value=True),
-        Parameter("bag_dir", value=str(tmp_path)), Parameter("rerun", value="connect:rerun+http://127.0.0.1:9/proxy")])
+        Parameter("bag_dir", value=str(tmp_path)), Parameter("rerun", value=f"connect:{url}")])
+    viewer.close()  # the viewer is gone
     errors: list[str] = []
     node.rig.log.error = errors.append  # type: ignore[method-assign]
     try:

@@ -463,6 +463,8 @@ def test_invalid_parameters_exit_code_2(ros_env: dict[str, str], param: str, say
 @pytest.mark.parametrize("params, says", [
     (("record:=true", "bag_dir:=/proc/no_such_dir"), "cannot record in '/proc/no_such_dir'"),
     (("rerun:=save:/proc/no_such_dir/x.rrd",), "cannot open the Rerun sink 'save:/proc/no_such_dir/x.rrd'"),
+    # no viewer listening: the node started, and its stop waited on rerun for as long as it ran (10 min seen)
+    (("rerun:=connect:rerun+http://127.0.0.1:9/proxy",), "no Rerun viewer at rerun+http://127.0.0.1:9/proxy"),
 ])
 def test_a_sink_asked_for_and_impossible_stops_the_start(ros_env: dict[str, str], params: tuple[str, ...],
                                                            says: str) -> None:

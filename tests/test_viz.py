@@ -286,3 +286,64 @@ def test_the_flutter_monitor_has_a_column_of_its_own(tmp_path: Path) -> None:
     without = tmp_path / "run.rrd"
     RerunLogger(N_MODES, mode="save", target=str(without), views=()).close()
     assert len(_columns(without)[0]) == 2
+
+
+def test_a_live_viewer_that_is_absent_is_refused_at_the_start() -> None:
+    """rerun connects lazily: `rerun:=connect:URL` with no viewer there started, then held the node's stop forever
+    (its flush timeout is not kept when the stream cannot deliver). The viewer's port is tried first."""
+    import socket
+
+    from panel_rig.viz.logger import viewer_problem
+
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen(1)
+        port = listening.getsockname()[1]
+        assert viewer_problem(f"rerun+http://127.0.0.1:{port}/proxy") is None
+    said = viewer_problem(f"rerun+http://127.0.0.1:{port}/proxy")  # closed now: refused
+    assert said is not None and said.startswith(f"no Rerun viewer at rerun+http://127.0.0.1:{port}/proxy (")
+    assert "save:PATH.rrd" in said
+    with pytest.raises(VizError, match="no Rerun viewer at"):
+        RerunLogger(N_MODES, mode="connect", target=f"rerun+http://127.0.0.1:{port}/proxy")
+
+
+HUNG_VIEWER = """
+import socket, sys, threading, time
+import numpy as np
+from panel_rig.viz import RerunLogger, VizError
+from panel_rig.viz import logger
+logger.FLUSH_TIMEOUT_S["connect"], logger.DISCONNECT_GRACE_S = 1.0, 1.0
+srv = socket.socket(); srv.bind(("127.0.0.1", 0)); srv.listen(8)
+held = []
+threading.Thread(target=lambda: [held.append(srv.accept()[0]) for _ in iter(int, 1)], daemon=True).start()
+lg = RerunLogger(3, mode="connect", target=f"rerun+http://127.0.0.1:{srv.getsockname()[1]}/proxy")
+t0, slowest, k = time.monotonic(), 0.0, 0
+while lg._rec.dropped == 0 and time.monotonic() - t0 < 90:  # until rerun's buffers are full and the queue too
+    t = 10 * k + np.arange(10000) * 1e-3
+    t1 = time.monotonic()
+    lg.log_batch(t, np.sin(t), np.zeros((t.size, 3)), np.ones(t.size), np.zeros(t.size))
+    slowest, k = max(slowest, time.monotonic() - t1), k + 1
+print("slowest", slowest, flush=True)
+print("logged", k, lg._rec.dropped, flush=True)
+try:
+    lg.close()
+except VizError as exc:
+    print("close:", exc, flush=True)
+print("closed", time.monotonic() - t0, flush=True)
+"""
+
+
+def test_a_viewer_that_takes_no_data_neither_stops_the_logging_nor_the_exit() -> None:
+    """A viewer that accepted the connection and then took no data (frozen, suspended) froze a fast node 30 s into
+    its run inside rerun's send_columns: no Ctrl-C, no closed bag. The calls now go through a queue to a thread of
+    their own: logging goes on (what does not fit is dropped, and counted), the close gives up after its timeout
+    with one error, and the process exits."""
+    proc = subprocess.run([sys.executable, "-c", HUNG_VIEWER], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = dict(line.split(" ", 1) for line in proc.stdout.splitlines() if " " in line)
+    assert int(lines["logged"].split()[1]) > 0, proc.stdout  # the viewer stopped taking data: jobs were dropped
+    assert float(lines["slowest"]) < 2.0, proc.stdout  # no call waited for it (rerun's own wait is forever)
+    said = lines["close:"]
+    assert "took no data for 2 s; gave up" in said and "batches dropped while the viewer took no data" in said, said
+    assert float(lines["closed"].split()[-1]) < 120, proc.stdout

@@ -6,6 +6,8 @@ All data is on the duration timeline `sim_time` (simulated seconds).
 
 from __future__ import annotations
 
+import socket
+import threading
 import time
 from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
@@ -13,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from panel_rig.paths import prepare_rrd_path
+from panel_rig.viz.sender import QueuedStream, one_job
 
 if TYPE_CHECKING:
     from panel_rig.rig.reading import Reading, ReadingBlock
@@ -48,6 +51,9 @@ OPTIONAL_VIEWS = ("control", "flutter", "flutter_uf", "flutter_zw", "analysis")
 DEFAULT_GRPC_URL = "rerun+http://127.0.0.1:9876/proxy"
 #: how long close() waits for the last data to reach the viewer or the .rrd file (s)
 FLUSH_TIMEOUT_S = {"connect": 5.0, "save": 60.0}
+DISCONNECT_GRACE_S = 6.0  # beyond the flush's timeout: rerun's own 5 s for a last connection attempt
+VIEWER_PROBE_TIMEOUT_S = 2.0  # a viewer's gRPC port must accept a connection within this at the start
+_ABANDONED: list[Any] = []  # recording streams whose flush never returned (see RerunLogger.close)
 # How a time-series view draws the samples that share a pixel when zoomed out. Rerun's default is the
 # average, which flattens an oscillation (an LCO of tip w/L +-1.2 shows as about +-0.2); min/max keeps
 # its envelope at any zoom.
@@ -158,6 +164,27 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
     return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), collapse_panels=True)
 
 
+def viewer_problem(url: str, timeout_s: float = VIEWER_PROBE_TIMEOUT_S) -> str | None:
+    """Why no Rerun viewer takes connections at gRPC ``url`` (``rerun+http://HOST:PORT/proxy``), or None. Unparsed
+    URLs are left to rerun (None)."""
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(url.removeprefix("rerun+"))
+        host, port = parts.hostname, parts.port or (443 if parts.scheme == "https" else 80)
+    except ValueError:
+        return None
+    if not host:
+        return None
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return None
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        return (f"no Rerun viewer at {url} ({reason.lower()}): start one first (`rerun`), or write a file "
+                "(save:PATH.rrd)")
+
+
 class RerunLogger:
     """Log readings, batches and panel shapes to Rerun. Mode "off" does nothing at all."""
 
@@ -204,19 +231,25 @@ class RerunLogger:
         if mode == "save":
             rec.save(self._save_path(target), default_blueprint=bp)
         else:
+            url = target or DEFAULT_GRPC_URL
+            problem = viewer_problem(url)  # rerun connects lazily: an absent viewer held the node's stop forever
+            if problem is not None:
+                raise VizError(problem)
             try:
-                rec.connect_grpc(target or DEFAULT_GRPC_URL, default_blueprint=bp)
+                rec.connect_grpc(url, default_blueprint=bp)
             except Exception as exc:  # noqa: BLE001 - rerun raises various types for bad URLs
                 raise VizError(f"cannot connect to Rerun viewer at {target}: {exc}") from None
+        # a live viewer is fed from a thread of its own: one that stops taking data never stops the caller
+        self._rec = QueuedStream(rec) if mode == "connect" else rec
         if recording_name:
-            rec.send_recording_name(recording_name)
-        self._rec = rec
+            self._rec.send_recording_name(recording_name)
         self.views_with_flutter = "flutter" in views
         self._log_styles()
 
     def _blueprint(self) -> Any:
         return blueprint(self.n_modes, self._views, whole_run=self.mode == "save", shape=self._shape)
 
+    @one_job
     def _add_control_views(self) -> None:
         """The first control command: the layout gains the control views (sent as the active blueprint)."""
         self._views += ("control",)
@@ -228,6 +261,7 @@ class RerunLogger:
     def enabled(self) -> bool:
         return self._rec is not None
 
+    @one_job
     def log_reading(self, reading: Reading) -> None:
         """Log one rig sample at `reading.time_s`."""
         if self._rec is None:
@@ -240,6 +274,7 @@ class RerunLogger:
         rec.log(AIRSPEED, rr.Scalars(float(reading.airspeed_mps)))
         rec.log(FORCE, rr.Scalars(float(reading.shaker_force_npm)))
 
+    @one_job
     def log_batch(
         self,
         times_s: np.ndarray,
@@ -267,6 +302,7 @@ class RerunLogger:
             data = np.asarray(values, dtype=float).reshape(-1)
             self._rec.send_columns(entity, indexes=index, columns=self._rr.Scalars.columns(scalars=data))
 
+    @one_job
     def log_shape(self, time_s: float, x_m: np.ndarray, z_m: np.ndarray) -> None:
         """Log the deflected airfoil+panel line (x along chord, z deflection, y = 0) as one strip."""
         if self._rec is None:
@@ -300,6 +336,7 @@ class RerunLogger:
         if time.monotonic() - self._pending_since >= self.batch_period_s:
             self.flush_blocks()
 
+    @one_job
     def flush_blocks(self) -> None:
         """Send the buffered blocks now (one `send_columns` per entity)."""
         pending, self._pending = self._pending, []
@@ -331,6 +368,7 @@ class RerunLogger:
 
         self.log_batch(cat("time_s"), cat("tip_w_over_L"), cat("q"), cat("airspeed_mps"), cat("shaker_force_npm"))
 
+    @one_job
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         """Accepted commands become scalars under `commands/<name>`."""
         if self._rec is None or not accepted or name == "control/force_cmd":  # 500 Hz: batched by log_control
@@ -338,6 +376,7 @@ class RerunLogger:
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
 
+    @one_job
     def log_flutter_point(self, time_s: float, points: Any, decision: Any, required_margin: float) -> None:
         """The flutter monitor after a test point, one sample per series at ``time_s``: the predicted U_f with its
         interval (m/s) and each predictor's U_f (damping trend, ZW flutter margin) where it crosses, the margin and
@@ -376,6 +415,7 @@ class RerunLogger:
         for entity, archetype in vg_scene(points, trend_curve(points, decision), uf).items():
             rec.log(f"{FLUTTER_VG}/{entity}", archetype)
 
+    @one_job
     def log_text(self, time_s: float, entity: str, text: str, warn: bool = False) -> None:
         """A line of text (level INFO, or WARN) on ``entity`` at ``time_s``, e.g. an analysis result."""
         if self._rec is None:
@@ -384,18 +424,49 @@ class RerunLogger:
         self._rec.log(entity, self._rr.TextLog(text, level="WARN" if warn else "INFO"))
 
     def close(self) -> None:
-        """Flush everything; the logger is disabled afterwards. Idempotent."""
+        """Flush everything; the logger is disabled afterwards. Idempotent. VizError when the data did not all
+        reach the file or the viewer (within FLUSH_TIMEOUT_S + DISCONNECT_GRACE_S of wall time)."""
         if self._rec is not None:
             self.flush_blocks()
         rec, self._rec = self._rec, None
         if rec is None:
             return
-        try:  # bounded: a viewer that is gone must not hang the node's shutdown (rerun's default waits forever)
-            rec.flush(timeout_sec=FLUSH_TIMEOUT_S[self.mode])
-        except RuntimeError as exc:  # rerun's timeout and connection errors
-            raise VizError(f"Rerun data not delivered ({self.mode}): {exc}") from None
-        finally:
-            rec.disconnect()  # gRPC: at most rerun's own 5 s for a last connection attempt
+        queued = rec if isinstance(rec, QueuedStream) else None
+        native = queued.rec if queued is not None else rec
+        wait_s = FLUSH_TIMEOUT_S[self.mode] + DISCONNECT_GRACE_S
+        # bounded: a viewer that is gone must not hang the node's shutdown. rerun's own flush timeout is not kept
+        # when its gRPC stream cannot deliver (rerun 0.41: a viewer that stopped answering held a node's stop for
+        # 10 minutes, until it was killed; upstream rerun-io/rerun#12620), so the flush runs in a thread of its own
+        failure: list[str] = []
+
+        def deliver() -> None:
+            try:
+                if queued is not None and not queued.drain(FLUSH_TIMEOUT_S[self.mode]):
+                    failure.append("the queued data was not sent")
+                    return
+                native.flush(timeout_sec=FLUSH_TIMEOUT_S[self.mode])
+            except RuntimeError as exc:  # rerun's timeout and connection errors
+                failure.append(str(exc))
+            finally:
+                native.disconnect()  # gRPC: at most rerun's own 5 s for a last connection attempt
+
+        worker = threading.Thread(target=deliver, name="rerun-flush", daemon=True)
+        worker.start()
+        worker.join(wait_s)
+        lost = ""
+        if queued is not None and (queued.dropped or queued.errors):
+            lost = (f"; {queued.dropped} of {queued.offered} batches dropped while the viewer took no data (the bag "
+                    "has every reading)" if queued.dropped else "") + (
+                f"; rerun: {queued.errors[0]}" if queued.errors else "")
+        if worker.is_alive():  # stuck in rerun: left behind, and rerun's exit handler (the same flush) is dropped
+            self._rr.unregister_shutdown()
+            _ABANDONED.append(native)  # never collected: its finaliser would wait on the same stream
+            raise VizError(f"Rerun data not delivered ({self.mode}): the viewer at {self.target or DEFAULT_GRPC_URL} "
+                           f"took no data for {wait_s:g} s; gave up{lost}")
+        if failure:
+            raise VizError(f"Rerun data not delivered ({self.mode}): {failure[0]}{lost}")
+        if lost:
+            raise VizError(f"Rerun data not delivered whole ({self.mode}){lost}")
 
     # ------------------------------------------------------------------ internals
     @staticmethod
@@ -407,6 +478,7 @@ class RerunLogger:
         except ValueError as exc:
             raise VizError(str(exc)) from None
 
+    @one_job
     def _log_styles(self) -> None:
         """Static `SeriesLines` per series: name, colour, width and min/max zoom aggregation (`AGGREGATION`)."""
         rr, rec = self._rr, self._rec
