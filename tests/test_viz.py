@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from collections import Counter
@@ -347,3 +348,21 @@ def test_a_viewer_that_takes_no_data_neither_stops_the_logging_nor_the_exit() ->
     said = lines["close:"]
     assert "took no data for 2 s; gave up" in said and "batches dropped while the viewer took no data" in said, said
     assert float(lines["closed"].split()[-1]) < 120, proc.stdout
+
+
+def test_rerun_s_own_log_lines_have_no_colour_codes_off_a_terminal(monkeypatch) -> None:
+    """A node's log file had rerun's Rust warnings as escape sequences (ESC[33m WARN ESC[0m): off a terminal the
+    standard NO_COLOR is set before rerun logs; a user's own NO_COLOR is kept."""
+    from panel_rig.viz.logger import plain_rust_logs
+
+    class Pipe:
+        def isatty(self) -> bool:
+            return False
+
+    monkeypatch.delenv("NO_COLOR", raising=False)
+    monkeypatch.setattr(sys, "stderr", Pipe())
+    plain_rust_logs()
+    assert os.environ["NO_COLOR"] == "1"
+    monkeypatch.setenv("NO_COLOR", "yes")
+    plain_rust_logs()
+    assert os.environ["NO_COLOR"] == "yes"

@@ -6,7 +6,9 @@ All data is on the duration timeline `sim_time` (simulated seconds).
 
 from __future__ import annotations
 
+import os
 import socket
+import sys
 import threading
 import time
 from collections.abc import Collection
@@ -164,6 +166,13 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
     return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), collapse_panels=True)
 
 
+def plain_rust_logs() -> None:
+    """rerun's own (Rust) log lines without colour codes when stderr is no terminal: a node's log file had them as
+    escape sequences. Read when rerun first logs, from the standard ``NO_COLOR``; one already set is kept."""
+    if not sys.stderr.isatty():
+        os.environ.setdefault("NO_COLOR", "1")
+
+
 def viewer_problem(url: str, timeout_s: float = VIEWER_PROBE_TIMEOUT_S) -> str | None:
     """Why no Rerun viewer takes connections at gRPC ``url`` (``rerun+http://HOST:PORT/proxy``), or None. Unparsed
     URLs are left to rerun (None)."""
@@ -223,6 +232,7 @@ class RerunLogger:
         self._control_views_on_data = control_views_on_data and "control" not in self._views
         if mode == "off":
             return
+        plain_rust_logs()
         import rerun as rr
 
         self._rr = rr
