@@ -319,13 +319,13 @@ held = []
 threading.Thread(target=lambda: [held.append(srv.accept()[0]) for _ in iter(int, 1)], daemon=True).start()
 lg = RerunLogger(3, mode="connect", target=f"rerun+http://127.0.0.1:{srv.getsockname()[1]}/proxy")
 t0, slowest, k = time.monotonic(), 0.0, 0
-while lg._rec.dropped == 0 and time.monotonic() - t0 < 90:  # until rerun's buffers are full and the queue too
+while lg.dropped_batches == 0 and time.monotonic() - t0 < 90:  # until rerun's buffers are full and the queue too
     t = 10 * k + np.arange(10000) * 1e-3
     t1 = time.monotonic()
     lg.log_batch(t, np.sin(t), np.zeros((t.size, 3)), np.ones(t.size), np.zeros(t.size))
     slowest, k = max(slowest, time.monotonic() - t1), k + 1
 print("slowest", slowest, flush=True)
-print("logged", k, lg._rec.dropped, flush=True)
+print("logged", k, lg.dropped_batches, flush=True)
 try:
     lg.close()
 except VizError as exc:

@@ -148,6 +148,7 @@ class RigNode(Node):
         # clocks: the physics follows the steady clock; stats for diagnostics and the benchmark
         self._diag_rejected = 0
         self._diag_record_errors = 0
+        self._diag_viewer_dropped = 0
         self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         self._diag_aborts = 0  # the rig's abort count at the last /diagnostics
         self._rejection_held: dict[str, tuple[int, str]] = {}  # topic -> (warnings held back, the last one)
@@ -546,6 +547,13 @@ class RigNode(Node):
         record_errors_now = recording.errors - self._diag_record_errors
         self._diag_record_errors = recording.errors
         level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error)
+        dropped = self._rerun.dropped_batches if self._rerun is not None else 0
+        values["viewer_dropped_batches"] = dropped
+        if dropped > self._diag_viewer_dropped:  # a live viewer that stopped taking data: said while it happens
+            self.get_logger().warning(
+                f"the Rerun viewer is not taking data: {dropped - self._diag_viewer_dropped} batches dropped since the "
+                f"last status, {dropped} in all (the bag has every reading)")
+            self._diag_viewer_dropped = dropped
         stamp = self.publication.stamp_ns(rig.time_s)
         msg = messages.diagnostics_msg(stamp, level, message, values, hardware_id=self.get_namespace())
         self.publication.publish(self.pub_diag, msg, stamp, "reliable")

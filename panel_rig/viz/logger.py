@@ -271,6 +271,11 @@ class RerunLogger:
     def enabled(self) -> bool:
         return self._rec is not None
 
+    @property
+    def dropped_batches(self) -> int:
+        """Logging calls a live viewer's queue had no room for (it was not taking data); 0 for a file."""
+        return self._rec.dropped if isinstance(self._rec, QueuedStream) else 0
+
     @one_job
     def log_reading(self, reading: Reading) -> None:
         """Log one rig sample at `reading.time_s`."""
