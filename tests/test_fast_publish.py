@@ -446,3 +446,51 @@ def test_a_failing_recording_shows_in_diagnostics(ros_env: dict[str, str], tmp_p
     assert statuses[-1].message.startswith("recording failed: ") and "No space left" in statuses[-1].message
     assert values[-1]["recording"] == "failed" and int(values[-1]["recording_errors"]) > 0
     assert node.rig.time_s > 1.0  # the rig ran on
+
+
+def test_a_live_viewer_s_dropped_batches_are_on_diagnostics_and_in_the_log(ros_env: dict[str, str], tmp_path: Path
+                                                                          ) -> None:
+    """A live viewer that takes no data has its batches dropped (panel_rig.viz.sender): the node says so while it
+    happens, on /diagnostics (`viewer_dropped_batches`) and in a warning at each status that saw more dropped."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("rerun", value=f"save:{tmp_path / 'x.rrd'}")])
+    warnings: list[str] = []
+    published: list[dict[str, str]] = []
+
+    class Logger:
+        def warning(self, text: str) -> None:
+            warnings.append(text)
+
+        info = error = debug = warning
+
+    class Dropping:  # the live logger's count, as a viewer that stopped taking data leaves it
+        dropped_batches = 0
+
+        def close(self) -> None:
+            pass
+
+    try:
+        real = node._rerun
+        node._rerun = Dropping()
+        node.get_logger = Logger  # type: ignore[method-assign]
+        node.publication.publish = lambda pub, msg, stamp, qos: published.append(  # type: ignore[method-assign]
+            {kv.key: kv.value for kv in msg.status[0].values})
+        node.publish_diagnostics()
+        Dropping.dropped_batches = 50
+        node.publish_diagnostics()
+        node.publish_diagnostics()  # no more dropped: no second warning
+        assert [p["viewer_dropped_batches"] for p in published] == ["0", "50", "50"]
+        assert warnings == ["the Rerun viewer is not taking data: 50 batches dropped since the last status, 50 in "
+                            "all (the bag has every reading)"], warnings
+        node._rerun = real
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
