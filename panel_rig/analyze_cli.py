@@ -6,6 +6,7 @@ Rerun replay of a recording. Bad or damaged bags exit with status 2 and one line
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -212,6 +213,11 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
                         warn=result["onset"]["bracket_high_mps"] is not None)
 
 
+def _hz(f_hz: float | None) -> str:
+    """A frequency for the table: "-" for none (the operator's table has it so; "nan" read as a fault)."""
+    return "-" if f_hz is None or not math.isfinite(f_hz) else f"{f_hz:.2f}"
+
+
 MAX_GAPS_SHOWN = 10  # gaps listed in the table (a line of thousands was 80 kB)
 HELD_DEFLECTION_W_OVER_L = 1e-4  # a plateau's mean tip w/L named under the table above this (and above its RMS)
 
@@ -243,7 +249,7 @@ def format_table(result: dict[str, Any]) -> str:
     for p in result["plateaus"]:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
-            f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {p['dominant_frequency_hz']:>6.2f} "
+            f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {_hz(p['dominant_frequency_hz']):>6} "
             f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
         )
     for p in result["plateaus"]:  # a force held on the shaker: the table's RMS is the motion about the deflection

@@ -116,8 +116,10 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
         op_code = stop(operator, NODE_STOP_TIMEOUT_S) if operator is not None else None
         node_code = stop(node, NODE_STOP_TIMEOUT_S) if node is not None else None
     if stopped is not None:
-        return _stopped(stopped, operator, bag_dir, node_log)
+        return _stopped(stopped, operator, _new_bag(bag_dir, before) or bag_dir, rrd, node_log)
     wall_s = time.monotonic() - t0
+    from panel_rig.ros.operator import NOT_AS_WRITTEN  # (rclpy: loaded only once the session ran)
+
     log_text = node_log.read_text(errors="replace")
     aborts = [line.split("]: ", 1)[-1] for line in log_text.splitlines() if "rig aborted" in line]
     bag = _new_bag(bag_dir, before)
@@ -133,21 +135,23 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
     print(op_out.strip() or "(no output)")
     if op_code != 0:
         print(op_err.strip()[-2000:], file=sys.stderr)
-    print("\nAborts: " + ("; ".join(aborts) if aborts else "none (the rig ran the whole procedure)"))
+    not_as_written = [line.split(": ", 1)[-1] for line in op_err.splitlines() if NOT_AS_WRITTEN in line]
+    print("\nAborts: " + ("; ".join(aborts) if aborts else "none" + (
+        "" if not_as_written else " (the rig ran the whole procedure)")))
+    if not_as_written:  # a command the rig refused: the procedure did not run as written (said, not a failure)
+        print(f"Operator: {not_as_written[-1]}")
     print(f"Bag: {bag or '(none found)'}\nRerun: {rrd if rrd.exists() else '(not written)'}\nNode log: {node_log}")
     if failure:
         print(failure, file=sys.stderr)
     elif table is not None:
         print(f"\nAnalysis of {bag.name} (PNGs and analysis.json in {out}):\n{table}")
-    from panel_rig.ros.operator import NOT_AS_WRITTEN  # (rclpy: loaded only once the session ran)
-
     # an abort of the rig (or a command it refused) is reported above, not a failure of the demo
     played = op_code == 0 or (op_code == 1 and NOT_AS_WRITTEN in op_err)
     ok = played and node_code == 0 and bag is not None and table is not None
     return 0 if ok else 1
 
 
-def _stopped(exc: BaseException, operator: subprocess.Popen | None, bag_dir: Path, node_log: Path) -> int:
+def _stopped(exc: BaseException, operator: subprocess.Popen | None, bag: Path, rrd: Path, node_log: Path) -> int:
     """A stopped session (its children stopped already): the steps the operator played, one line, the status.
     It printed two lines and lost the operator's table, which its Ctrl-C had printed into the pipe."""
     if operator is not None:
@@ -160,7 +164,8 @@ def _stopped(exc: BaseException, operator: subprocess.Popen | None, bag_dir: Pat
         said = [line.removeprefix("rig_operator: ") for line in op_err.splitlines() if "stopped at step" in line]
         if said:
             print(f"panel-rig demo: operator {said[-1]}", file=sys.stderr)
-    print(f"panel-rig demo: stopped; the recording so far is in {bag_dir}, the node log {node_log}", file=sys.stderr)
+    print(f"panel-rig demo: stopped; the recording so far is in {bag}" + (f", the Rerun file {rrd}" if rrd.exists()
+          else "") + f", the node log {node_log}", file=sys.stderr)
     if isinstance(exc, SystemExit):
         raise exc
     return INTERRUPTED_STATUS

@@ -587,6 +587,20 @@ def test_a_decay_is_measured_after_a_tap_or_along_a_line() -> None:
     assert estimate_onset([p(8.0, "stationary", 0, -0.125), p(11.0, "growing", 20, 0.5)])["bracket_low_mps"] == 8.0
 
 
+def test_a_long_dwell_after_a_tap_keeps_its_decay() -> None:
+    """A tap at 9 m/s, then 16 s of dwell: the turbulence's response in the last 5 s peaked at 0.43 Hz, the envelope
+    window (4 periods) became 9.4 s, under 3 of them fitted the free response, and its rate was 0 ("stationary";
+    with a 6 s dwell the same tap read -0.626 1/s). The windows are now at most an eighth of the free response."""
+    from panel_rig.analysis.bag_analysis import analyze_series
+
+    t = np.arange(0.0, 18.5, 1.0 / 500.0)
+    tap = np.where(t >= 2.0, 1e-3 * np.exp(-0.63 * (t - 2.0)) * np.sin(2 * np.pi * 23.0 * t), 0.0)
+    w = tap + 3e-5 * np.sin(2 * np.pi * 0.43 * t)
+    (p,) = analyze_series(t, w, np.full(t.size, 9.0), {"shaker/amplitude_cmd": [(1.5, 0.3), (2.0, 0.0)]})["plateaus"]
+    assert p["dominant_frequency_hz"] == pytest.approx(0.43, abs=0.1)  # the late window's peak, as in the bag
+    assert p["status"] == "decaying" and p["growth_rate_per_s"] < -0.1, p  # (the floor biases it: -0.18)
+
+
 def test_a_free_decay_with_the_wind_off_is_no_lco() -> None:
     """After an abort at 12 m/s the panel rang down at 0 m/s from 0.8 L at -0.1 1/s: the irregular-LCO rule (a
     5 s window, its thirds within 0.5-2 of each other) called that plateau an LCO at 0.00 m/s. With the wind off

@@ -18,7 +18,8 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   |w/L| (mean included) and the dominant frequency are taken there; the envelope and the status below are those of
   the motion about that mean.
 * **Growth rate** (1/s): least-squares slope of log(envelope), the envelope being the RMS of
-  consecutive windows of ``max(envelope_window_s, 4 periods)``; windows below ``1e-3`` of the
+  consecutive windows of ``max(envelope_window_s, 4 periods)`` (at most an eighth of the free response, when that
+  is at least ``envelope_window_s``); windows below ``1e-3`` of the
   largest are left out (numerical floor). ``growth_rate_per_s`` over the free response,
   ``late_growth_rate_per_s`` over the metrics window.
 * **Status**: ``lco`` if RMS >= ``lco_min_rms`` and ``|late rate| <= max_steady_rate_per_s``, or, for
@@ -59,6 +60,7 @@ import numpy as np
 
 from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_std
 
+MIN_ENVELOPE_WINDOWS = 8  # envelope windows a free response is cut into at least (when each is >= envelope_window_s)
 SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
 Commands = dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
 
@@ -262,6 +264,9 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     mean = float(np.mean(late))
     freq = dominant_frequency_hz(late, mean_dt(t[i1 - late.size : i1]))
     win_s = max(crit.envelope_window_s, 4.0 / freq) if freq > 0 else crit.envelope_window_s
+    # at least MIN_ENVELOPE_WINDOWS over the free response: the turbulence's response in a long dwell after a tap
+    # put a 0.43 Hz peak in the last 5 s, a 9.4 s window left under 3 of them, and the tap's decay rate was 0
+    win_s = min(win_s, max(crit.envelope_window_s, (t1 - float(t[j0])) / MIN_ENVELOPE_WINDOWS))
     win_n = max(2, int(round(win_s / dt)))  # samples per envelope window
     env = window_std(free, win_n)
     rate = envelope_rate_per_s(free, dt, win_s)
