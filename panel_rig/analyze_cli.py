@@ -6,6 +6,7 @@ Rerun replay of a recording. Bad or damaged bags exit with status 2 and one line
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -45,6 +46,8 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     span = f"{rec.t_s[-1] - rec.t_s[0]:.1f} s" if rec.t_s.size else "no time"
     say(f"read {rec.t_s.size} readings ({span}) in {time.monotonic() - t0:.1f} s; finding the plateaus and the "
         "flutter-test points")
+    if criteria is None:  # "quiet" above the run's sensor noise: a panel at rest read 5 um of noise, "stationary"
+        crit = dataclasses.replace(crit, quiet_rms=quiet_rms_of(rec.parameters, rec.panel_length_m, crit.quiet_rms))
     core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
@@ -66,6 +69,21 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
                        else None)
     return result
+
+
+#: a plateau whose envelope stays below this many times the tip sensor's noise (w/L) is "quiet": it did not move
+QUIET_NOISE_FACTOR = 2.0
+
+
+def quiet_rms_of(parameters: dict[str, Any], panel_length_m: float, floor: float) -> float:
+    """The "quiet" threshold (w/L) of a run: QUIET_NOISE_FACTOR x its tip sensor's noise (white noise and the
+    quantisation step's q / sqrt(12), from the bag's parameters), at least ``floor``."""
+    def number(key: str) -> float:
+        value = parameters.get(key)
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
+
+    noise_m = math.hypot(number("sensor.tip_noise_m"), number("sensor.resolution_m") / math.sqrt(12.0))
+    return max(floor, QUIET_NOISE_FACTOR * noise_m / panel_length_m)
 
 
 class FlutterTestReplay(NamedTuple):

@@ -601,6 +601,31 @@ def test_a_long_dwell_after_a_tap_keeps_its_decay() -> None:
     assert p["status"] == "decaying" and p["growth_rate_per_s"] < -0.1, p  # (the floor biases it: -0.18)
 
 
+def test_a_panel_at_rest_under_the_sensor_s_noise_is_quiet() -> None:
+    """A panel at rest read the default sensor's 5 um of noise: RMS 1.9e-5 L, 185 times the fixed quiet threshold,
+    so it was "stationary" at 100-240 Hz. `panel-rig analyze` puts the threshold at twice the run's sensor noise
+    (from the bag's parameters); a quiet plateau has no frequency. The turbulence's response at 8 m/s (27 um) and a
+    ring-down are still moving."""
+    import dataclasses
+
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series
+    from panel_rig.analyze_cli import quiet_rms_of
+
+    length_m = 0.27
+    params = {"sensor.tip_noise_m": 5e-6, "sensor.resolution_m": 3e-6}
+    crit = dataclasses.replace(Criteria(), quiet_rms=quiet_rms_of(params, length_m, Criteria().quiet_rms))
+    assert crit.quiet_rms == pytest.approx(2 * np.hypot(5e-6, 3e-6 / np.sqrt(12)) / length_m)
+    assert quiet_rms_of({}, length_m, 1e-7) == 1e-7  # no sensor in the parameters: the fixed floor
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 12.0, 1.0 / 500.0)
+    noise = 5e-6 / length_m * rng.standard_normal(t.size)
+    (rest,) = analyze_series(t, noise, np.zeros(t.size), {}, crit)["plateaus"]
+    assert rest["status"] == "quiet" and np.isnan(rest["dominant_frequency_hz"]), rest
+    moving = noise + 1e-4 * np.sin(2 * np.pi * 4.0 * t)  # the random response's size at 8 m/s
+    (wind,) = analyze_series(t, moving, np.full(t.size, 8.0), {}, crit)["plateaus"]
+    assert wind["status"] != "quiet" and wind["dominant_frequency_hz"] == pytest.approx(4.0, abs=0.2)
+
+
 def test_a_free_decay_with_the_wind_off_is_no_lco() -> None:
     """After an abort at 12 m/s the panel rang down at 0 m/s from 0.8 L at -0.1 1/s: the irregular-LCO rule (a
     5 s window, its thirds within 0.5-2 of each other) called that plateau an LCO at 0.00 m/s. With the wind off

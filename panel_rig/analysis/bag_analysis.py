@@ -29,7 +29,8 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   else ``growing`` if both rates > ``max_steady_rate_per_s`` and the log-envelope is a line (R^2 >=
   ``min_growth_r2``): the tunnel's turbulence-driven random response wanders by more than that rate over a few
   seconds and was called growing when either rate was (the demo's 8 m/s plateau, which put the onset bracket
-  below it); else ``quiet`` if the envelope never rose above ``quiet_rms``; else ``decaying`` if the
+  below it); else ``quiet`` if the envelope never rose above ``quiet_rms`` (`panel-rig analyze`: twice the run's
+  tip-sensor noise; a quiet plateau has no frequency); else ``decaying`` if the
   free-response rate < ``-max_steady_rate_per_s`` and the decay was measured: a free response after a shaker
   tap, or without a tap an envelope falling along a line (R^2 >= ``min_decay_r2``: the random response's
   envelope reached R^2 0.94 in 200 five-second samples); else ``stationary`` (the turbulence's random
@@ -277,6 +278,8 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     u = airspeed_mps[i0:i1]
     status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
                      tapped=f0 > t0, wind_off=float(np.mean(u)) <= crit.min_extrapolation_airspeed_mps)
+    if status == "quiet":  # the peak of a sensor's noise is no frequency of the panel (it read 100-240 Hz)
+        freq = float("nan")
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),
