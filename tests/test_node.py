@@ -873,6 +873,20 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
     assert profile_problem(steps) == ("the profile did not run as written: the rig aborted during step 2; "
                                       "it refused the command of step 3 (see the table)")
     assert profile_problem(own) is None
+    # an operator started on a rig aborted earlier (a status during the profile still says so): its refused commands
+    # said only "rejected by the rig"
+    late = [StepSummary(1, "airspeed 8.0", 20.0, 20.1, note="airspeed 8 rejected by the rig"),
+            StepSummary(2, "dwell_s 2.0", 20.1, 22.1), StepSummary(3, "airspeed 9.0", 22.1, 22.2,
+                                                                    note="airspeed 9 rejected by the rig"),
+            StepSummary(4, "reset", 22.2, 22.3, note="reset"), StepSummary(5, "airspeed 8.0", 22.3, 22.4)]
+    annotate_aborts(late, {4.66: "abort service"})  # no status during the profile said aborted: it was reset
+    assert late[0].note == "airspeed 8 rejected by the rig"
+    annotate_aborts(late, {4.66: "abort service"}, aborted_seen_s=[3.0, 21.0])
+    assert [s.note for s in late] == [
+        "rejected (rig aborted; reset to go on) (it aborted at t = 4.66 s, before the profile: abort service)", "",
+        "rejected (rig aborted; reset to go on)", "reset", ""]
+    assert profile_problem(late) == ("the profile did not run as written: it refused the commands of steps 1, 3 "
+                                     "(see the table)")
 
 
 def test_a_value_typed_with_dash_p_wins_over_the_params_files():

@@ -215,6 +215,7 @@ class Operator(Node):
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, DIAGNOSTICS_QOS)
         self.diag_sim_time_s = -math.inf  # the rig's simulated time in its last diagnostics
         self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
+        self.aborted_seen_s: list[float] = []  # simulated times of statuses that said the rig was aborted
         # set by main's SIGINT/SIGTERM handler; the profile stops at the next spin (see _spin)
         self.stop_requested = stop if stop is not None else threading.Event()
         self.pubs = {name: self.create_publisher(Float64, topic, COMMAND_QOS) for name, topic in COMMAND_TOPICS.items()}
@@ -250,6 +251,8 @@ class Operator(Node):
         self.setpoint_mps = float(values.get("airspeed_setpoint_mps", "nan"))
         if values.get("last_abort_time_s"):
             self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
+        if values.get("state") == "aborted":
+            self.aborted_seen_s.append(float(values["sim_time_s"]))
 
     def _on_tip(self, msg: PointStamped) -> None:
         if self._samples is not None:
@@ -367,7 +370,7 @@ class Operator(Node):
             )
         self._samples = None
         self._await_diagnostics(self.time_s)
-        annotate_aborts(out, self.aborts)
+        annotate_aborts(out, self.aborts, self.aborted_seen_s)
         return out
 
     def _await_diagnostics(self, t_s: float, timeout_s: float = 3.0) -> None:
@@ -391,14 +394,26 @@ class Operator(Node):
             self._spin(0.02)
 
 
-def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str]) -> None:
+def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str],
+                    aborted_seen_s: Sequence[float] = ()) -> None:
     """Note each abort (simulated time -> reason) on the step during which it happened, and say why the commands
     the rig refused after it (echoed: "... rejected by the rig") were refused, until a reset step. Commands of 0
     (wind or shaker off) an aborted rig takes: they stay unmarked."""
     for t_abort, reason in sorted(aborts.items()):
         own = [s for s in summary if f"aborted at t = {t_abort:.3f} s" in s.note]  # the rig's answer says when
         started = own or [s for s in summary if s.t_start_s <= t_abort]
-        if not started:
+        if not started:  # aborted before the profile: the commands it refused say why (they said only "rejected"),
+            # when a status during the profile, before its first reset, still said aborted (it may have been reset)
+            resets = [s.t_start_s for s in summary if s.step.startswith("reset")]
+            t_first, t_reset = (summary[0].t_start_s if summary else math.inf), min(resets, default=math.inf)
+            if not any(t_first <= t <= t_reset for t in aborted_seen_s):
+                continue
+            before = f" (it aborted at t = {t_abort:.2f} s, before the profile: {reason})"
+            for s in summary:
+                if s.step.startswith("reset"):
+                    break
+                if REFUSED in s.note:
+                    s.note, before = REFUSED_AFTER_ABORT + before, ""
             continue
         hit = started[-1]
         if not own:
