@@ -1001,6 +1001,31 @@ def test_operator_waits_for_a_rig_that_starts_slowly(ros_env: dict[str, str]) ->
         rclpy.shutdown()
 
 
+def test_a_slow_executor_turn_while_waiting_for_the_rig_is_no_silence(ros_env: dict[str, str], monkeypatch) -> None:
+    """Under the suite's load one executor turn of the waiting operator took longer than its 0.2 s silence timeout,
+    and the wait ended "no readings from the rig for 0.2 s" instead of waiting on: the silence counts once the rig
+    is up."""
+    from panel_rig.ros import operator
+
+    real_spin_once = operator.rclpy.spin_once
+
+    def slow_turn(node: Any, timeout_sec: float = 0.0) -> None:
+        real_spin_once(node, timeout_sec=timeout_sec)
+        time.sleep(0.3)  # a turn that the scheduler delayed (a stand-in for the load, not a synchronisation)
+
+    rclpy.init(domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = operator.Operator("/rig_slow_turns", timeout_s=0.2, startup_timeout_s=1.0)
+        try:
+            monkeypatch.setattr(operator.rclpy, "spin_once", slow_turn)
+            with pytest.raises(operator.RigUnavailable, match="the rig in /rig_slow_turns did not come up within 1 s"):
+                node.wait_for_rig()
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
 def test_operator_takes_only_its_own_rigs_diagnostics(ros_env: dict[str, str]) -> None:
     """/diagnostics is one topic for every node: an operator of /rig_a took the status of a rig in /rig_b (its
     set-point, its simulated time as a sign of life, its aborts) as its own rig's. The rig's status carries its
