@@ -791,7 +791,11 @@ def test_exact_node_climbs_to_25_mps_in_fast_mode(ros_env: dict[str, str], clien
             client.wait(lambda u=u: air[-1][1] > u - 0.1, 60.0, f"the tunnel at {u} m/s")  # time constant 0.5 s
             assert proc.poll() is None, proc.stdout.read()[-2000:] if proc.stdout else ""
             previous = u
-        late = np.array([z for t, z in tips if t > tips[-1][0] - 2.0]) / load_config().panel_length_m
+        # readings 2 s and more after the 25 m/s answer, at least 100 of them (best effort in fast mode: a loaded
+        # client once had a single reading in the last 2 s, near a crossing, and read an RMS of 0.0015)
+        settled = t_answer + 2.0
+        client.wait(lambda: sum(t > settled for t, _ in tips) >= 100, 60.0, "100 readings at 25 m/s")
+        late = np.array([z for t, z in tips if t > settled]) / load_config().panel_length_m
         assert np.sqrt(np.mean(late**2)) > 0.1  # fluttering at 25 m/s
         assert np.max(np.abs([z for _, z in tips])) / load_config().panel_length_m < 0.25 / 0.27  # inside the walls
     finally:
