@@ -21,7 +21,9 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   consecutive windows of ``max(envelope_window_s, 4 periods)`` (at most an eighth of the free response, when that
   is at least ``envelope_window_s``); windows below ``1e-3`` of the
   largest are left out (numerical floor). ``growth_rate_per_s`` over the free response,
-  ``late_growth_rate_per_s`` over the metrics window.
+  ``late_growth_rate_per_s`` over the metrics window. After a tap whose envelope falls, ``growth_rate_per_s`` is
+  the tapped mode's decay above its random response instead (:mod:`panel_rig.analysis.decay`; its band in
+  ``decay_band_hz``), where that fit holds.
 * **Status**: ``lco`` if RMS >= ``lco_min_rms`` and ``|late rate| <= max_steady_rate_per_s``, or, for
   the irregular (bursting) LCO of the full nonlinear model, if RMS >= ``irregular_lco_min_rms`` and the
   oscillation is sustained (RMS of the last third of the metrics window within 0.5-2 of the first
@@ -59,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from panel_rig.analysis.decay import tap_decay
 from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_std
 
 MIN_ENVELOPE_WINDOWS = 8  # envelope windows a free response is cut into at least (when each is >= envelope_window_s)
@@ -271,6 +274,9 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     win_n = max(2, int(round(win_s / dt)))  # samples per envelope window
     env = window_std(free, win_n)
     rate = envelope_rate_per_s(free, dt, win_s)
+    tap = tap_decay(free, dt, win_s) if f0 > t0 and rate < 0 else None
+    if tap is not None:  # the tapped mode alone, above its random response (panel_rig.analysis.decay)
+        rate = tap[0].rate_per_s
     rate_late = envelope_rate_per_s(late, dt, min(win_s, late.size * dt / 3))
     rms_late = rms(late - mean)
     third = max(1, late.size // 3)
@@ -286,6 +292,7 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
         "airspeed_mps": float(np.mean(u)), "airspeed_std_mps": float(np.std(u)),
         "rms_tip_w_over_L": rms_late, "mean_tip_w_over_L": mean, "peak_tip_w_over_L": float(np.max(np.abs(late))),
         "dominant_frequency_hz": freq, "growth_rate_per_s": rate, "late_growth_rate_per_s": rate_late,
+        "decay_band_hz": [round(e, 3) if e is not None else None for e in tap[1]] if tap else None,
         "onset_growth_rate_per_s": (onset_growth_rate_per_s(env, win_n * dt, crit)
                                     if status == "lco" else None),
         "status": status,
