@@ -57,6 +57,10 @@ def test_a_stopped_demo_stops_its_children_and_closes_the_bag(tmp_path: Path, ho
         at = int(err.split("operator stopped at step ", 1)[1].split()[0])
         if at > 1:  # the steps before it (the stop came once the first command was recorded: mostly in step 2)
             assert "What the operator played before the stop" in out_text and "airspeed 8.0" in out_text, out_text
+            # the operator's log of step 1, sent before the fast node's clock ran: no airspeed reading yet (it said
+            # "U = nan m/s")
+            logs = "".join(f.read_text(errors="replace") for f in (out / "ros_log").rglob("*.log"))
+            assert "step 1: airspeed 8.0" in logs and "U = nan" not in logs, logs[-2000:]
         assert err.strip().splitlines()[-1].startswith("panel-rig demo: stopped; the recording so far is in"), err
 
 

@@ -515,6 +515,8 @@ def test_operator_plays_a_profile(fast_node: subprocess.Popen, client: Client, r
     assert "force 500 rejected by the rig" in notes["force 500.0"], proc.stdout
     assert "rejected (rig aborted; reset to go on)" in notes["airspeed 4.0"], proc.stdout
     assert "rejected" not in notes["airspeed 0.0"], proc.stdout
+    refused = next(r for r in rows if r[1:3] == ["airspeed", "4.0"])
+    assert num(refused[4]) == 0.0, proc.stdout  # U_cmd: the set-point the rig kept (it showed the refused 4.00)
     dwell = next(r for r in rows if r[1] == "dwell_s" and r[2] == "2.0")
     _, u_cmd, u_meas, _, _ = map(num, dwell[-5:])  # t_end U_cmd U_meas tip_rms_mm f_Hz
     assert u_cmd == 5.0 and u_meas == pytest.approx(5.0 * (1 - math.exp(-2.0 / TAU_S)), rel=0.05)
@@ -891,6 +893,23 @@ def test_operator_summary_notes_aborts_and_the_commands_refused_after_them() -> 
         "rejected (rig aborted; reset to go on)", "reset", ""]
     assert profile_problem(late) == ("the profile did not run as written: it refused the commands of steps 1, 3 "
                                      "(see the table)")
+
+
+def test_a_refused_airspeed_is_not_shown_as_commanded() -> None:
+    """The rig refused 12 m/s (after an abort): that row and the dwell after it showed U_cmd 12.00 while the rig held
+    0; they show the set-point it kept, up to the next step that sets the airspeed."""
+    from panel_rig.ros.operator import StepSummary, keep_commanded
+
+    rows = [StepSummary(1, "abort", 0.0, 0.1, commanded_mps=0.0),
+            StepSummary(2, "airspeed 12.0", 0.1, 0.2, commanded_mps=12.0),
+            StepSummary(3, "dwell_s 2.0", 0.2, 2.2, commanded_mps=12.0),
+            StepSummary(4, "reset", 2.2, 2.3, commanded_mps=0.0),
+            StepSummary(5, "airspeed 12.0", 2.3, 2.4, commanded_mps=12.0),
+            StepSummary(6, "dwell_s 2.0", 2.4, 4.4, commanded_mps=12.0)]
+    keep_commanded(rows, rows[1], 12.0, 0.0)
+    assert [r.commanded_mps for r in rows] == [0.0, 0.0, 0.0, 0.0, 12.0, 12.0]
+    keep_commanded(rows, StepSummary(7, "airspeed 30.0", 4.4), 30.0, 12.0)  # a step not in the table yet: its
+    assert [r.commanded_mps for r in rows] == [0.0, 0.0, 0.0, 0.0, 12.0, 12.0]  # row takes the operator's value
 
 
 def test_a_value_typed_with_dash_p_wins_over_the_params_files():

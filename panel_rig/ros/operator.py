@@ -220,7 +220,8 @@ class Operator(Node):
         self.stop_requested = stop if stop is not None else threading.Event()
         self.pubs = {name: self.create_publisher(Float64, topic, COMMAND_QOS) for name, topic in COMMAND_TOPICS.items()}
         # the rig echoes each command it refuses on <topic>/rejected: the step that sent it is marked
-        self._sent: list[tuple[str, float, StepSummary | None]] = []  # (command, value, step), oldest first
+        # (command, value, step, the commanded airspeed before it), oldest first
+        self._sent: list[tuple[str, float, StepSummary | None, float]] = []
         self._echoes = [
             self.create_subscription(Float64, topic + REJECTED_SUFFIX,
                                      lambda msg, name=name: self._on_rejected(name, msg.data), COMMAND_QOS)
@@ -297,15 +298,19 @@ class Operator(Node):
     def _on_rejected(self, name: str, value: float) -> None:
         """Mark the step that sent this command (the latest unanswered one of that name and value)."""
         for k in range(len(self._sent) - 1, -1, -1):
-            sent, v, step = self._sent[k]
+            sent, v, step, before_mps = self._sent[k]
             if sent == name and (v == value or (math.isnan(v) and math.isnan(value))):
                 del self._sent[k]
                 if step is not None and "rejected" not in step.note:
                     step.note = "; ".join(x for x in (step.note, f"{name} {value:g} {REFUSED}") if x)
+                if name == "airspeed":  # the rig kept its set-point
+                    if self.commanded_mps == value:
+                        self.commanded_mps = before_mps
+                    keep_commanded(self.played, step, value, before_mps)
                 return
 
     def send(self, name: str, value: float) -> None:
-        self._sent.append((name, float(value), self._step))
+        self._sent.append((name, float(value), self._step, self.commanded_mps))
         del self._sent[:-64]  # the rig answers within moments: only the recent ones can still be refused
         self.pubs[name].publish(Float64(data=float(value)))
         if name == "airspeed":
@@ -368,9 +373,9 @@ class Operator(Node):
             s.t_end_s, s.commanded_mps, s.measured_mps = self.time_s, self.commanded_mps, self.airspeed_mps
             s.tip_rms_m, s.tip_freq_hz = tip_metrics(s.samples)
             out.append(s)
-            self.get_logger().info(
-                f"step {s.index}: {s.step} t = {s.t_end_s:.2f} s U = {s.measured_mps:.2f} m/s", throttle_duration_sec=0.0
-            )
+            airspeed = f"{s.measured_mps:.2f} m/s" if math.isfinite(s.measured_mps) else "- (no reading yet)"
+            self.get_logger().info(f"step {s.index}: {s.step} t = {s.t_end_s:.2f} s U = {airspeed}",
+                                   throttle_duration_sec=0.0)
         self._samples = None
         self._await_diagnostics(self.time_s)
         annotate_aborts(out, self.aborts, self.aborted_seen_s)
@@ -395,6 +400,25 @@ class Operator(Node):
             if frac >= 1.0:
                 return
             self._spin(0.02)
+
+
+#: steps that send an airspeed set-point (or, for abort and reset, make the rig's 0)
+AIRSPEED_STEPS = ("airspeed", "ramp", "abort", "reset")
+
+
+def keep_commanded(summary: Sequence[StepSummary], step: StepSummary | None, refused_mps: float,
+                   kept_mps: float) -> None:
+    """The rig refused the airspeed set-point ``refused_mps`` sent during ``step``: that row and the rows after it
+    that still show it as commanded (until the next step that sets the airspeed) show the set-point the rig kept,
+    ``kept_mps`` (the table showed a refused 4 m/s after an abort as U_cmd, the rig at 0)."""
+    if step is None or not any(s is step for s in summary):
+        return
+    start = next(k for k, s in enumerate(summary) if s is step)
+    for s in summary[start:]:
+        if s is not step and s.step.split()[0] in AIRSPEED_STEPS:
+            break
+        if s.commanded_mps == refused_mps:
+            s.commanded_mps = kept_mps
 
 
 def annotate_aborts(summary: Sequence[StepSummary], aborts: dict[float, str],
