@@ -586,6 +586,11 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         return stopped.exit_status
     out["rerun"] = args.rerun  # the Rerun file written (None without --rerun)
     _emit(args, out, lambda: format_flutter_test(out))
+    from panel_rig.analysis.flutter_test import NOT_IDENTIFIED
+
+    if (out.get("stop_reason") or "").startswith(NOT_IDENTIFIED):  # it ended without clearing its last point
+        print(f"panel-rig flutter-test: stopped without clearance: {out['stop_reason']}", file=sys.stderr)
+        return 1
     return 1 if out["fluttered"] else 0
 
 

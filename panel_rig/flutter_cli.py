@@ -150,7 +150,8 @@ def point_line(index: int, point: Any, decision: Any) -> str:
     found = "flutter mode not identified" if e is None else (
         "{:.3f} Hz, zeta {:.4f} [{:.4f}, {:.4f}]".format(e.frequency_hz, e.damping_ratio, *e.damping_ci()))
     nxt = "stop" if decision.stop else f"next {decision.next_airspeed_mps:.3f} m/s"
-    return f"point {index}: {point.airspeed_mps:.3f} m/s: {found}; {nxt} ({decision.reason})"
+    reason = decision.reason.split(": ", 1)[-1] if decision.unidentified else decision.reason  # found says it
+    return f"point {index}: {point.airspeed_mps:.3f} m/s: {found}; {nxt} ({reason})"
 
 
 def stopped_message(signum: Any, n_points: int, where: str, bag: str | None) -> str:

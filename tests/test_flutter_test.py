@@ -36,6 +36,47 @@ def test_decide_caps_the_next_airspeed_and_stops_inside_the_margin():
     assert d.stop and "damping" in d.reason
 
 
+def test_a_point_without_a_flutter_mode_estimate_clears_nothing():
+    """A quiet tunnel (no turbulence, no tap) gave no flutter-mode estimate at any point, and the procedure stepped
+    on regardless, to 16.8 m/s (1.6 U_f) with exit 0. Now such a point stops the test, however the points before it
+    went; and a first mode identified with damping <= 0 (a failed identification of the heavily damped mode) is no
+    ZW point."""
+    from panel_rig.analysis.flutter_test import margin_points
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=1.0, margin=0.1)
+    blind = TestPoint(6.0, None, None, "ssi-cov")
+    for pts in ([blind], [_point(5.0), blind]):
+        d = decide(pts, s)
+        assert d.stop and d.unidentified and d.reason.startswith("flutter mode not identified at 6.000 m/s"), d
+    assert not decide([_point(5.0)], s).unidentified
+
+    def with_first(u, zeta_first):
+        return TestPoint(u, ModalEstimate(4.5, zeta_first, 0.1, 0.05, 9, "synthetic"), _point(u).flutter, "synthetic")
+
+    pts = [with_first(5.0, 0.45), with_first(6.0, -0.017), with_first(7.0, 0.44)]
+    u, f = margin_points(pts)
+    assert list(u) == [5.0, 7.0] and np.all(f > 0)
+
+
+def test_a_quiet_tunnel_s_test_stops_at_its_first_point_and_exits_1(tmp_path, capsys):
+    """`panel-rig flutter-test --in-process --set tunnel.turbulence.intensity=0`: nothing excites the panel, the
+    flutter mode is not identified, and the test stops at its first airspeed without clearing it (exit 1, one line
+    saying so)."""
+    import json
+
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--in-process", "--set", "tunnel.turbulence.intensity=0", "--dwell", "20", "--json",
+                 "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert code == 1 and out["fluttered"] is False and len(out["test_points"]) == 1
+    assert out["max_airspeed_mps"] == out["test_points"][0]["airspeed_mps"] < 0.6 * out["model_flutter_speed_mps"]
+    assert out["stop_reason"].startswith("flutter mode not identified at ")
+    assert captured.err.strip().splitlines()[-1] == (
+        f"panel-rig flutter-test: stopped without clearance: {out['stop_reason']}")
+
+
 def test_tap_start_is_the_first_sample_after_the_force():
     f = np.zeros(100)
     assert tap_start(None) is None and tap_start(f) is None

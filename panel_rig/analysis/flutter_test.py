@@ -11,8 +11,9 @@ if there was one. For each plateau the core
 2. updates both boundary predictors from the subcritical points so far (``flutter_margin``): the damping trend
    of the flutter mode (quadratic in dynamic pressure, >= 3 points) and the Zimmerman–Weissenburger margin of
    the two modes (linear in dynamic pressure, >= 2 points), each with its bootstrap interval;
-3. decides: stop when the identified flutter-mode damping is below ``min_damping``, or the predicted speed margin
-   1 - U/U_f is below ``margin``; otherwise step up by ``step_mps``, but never to more than (1 - margin) x the
+3. decides: stop when the flutter mode was not identified at the current point (no damping to clear the next one
+   on: a quiet tunnel climbed blind to 1.6 U_f), when its identified damping is below ``min_damping``, or when the
+   predicted speed margin 1 - U/U_f is below ``margin``; otherwise step up by ``step_mps``, but never to more than (1 - margin) x the
    predicted U_f (the lower of the two predictors, i.e. the conservative one), and stop when that cap leaves
    less than ``min_step_mps`` to go.
 
@@ -88,6 +89,10 @@ class TestPoint:
                 "method": self.method}
 
 
+#: how the reason of a stop on a point without a flutter-mode estimate begins (the command then exits 1)
+NOT_IDENTIFIED = "flutter mode not identified"
+
+
 @dataclass(frozen=True)
 class Decision:
     """What the procedure does next: ``next_airspeed_mps`` (None: stop) and why."""
@@ -101,6 +106,11 @@ class Decision:
     @property
     def stop(self) -> bool:
         return self.next_airspeed_mps is None
+
+    @property
+    def unidentified(self) -> bool:
+        """A stop because the current point gave no flutter-mode estimate: the test ended without clearing it."""
+        return self.stop and self.reason.startswith(NOT_IDENTIFIED)
 
     def margin(self, airspeed_mps: float) -> float:
         return self.prediction.margin(airspeed_mps) if self.prediction is not None else 1.0
@@ -157,7 +167,10 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
     pred = min(finite, key=lambda p: p.speed_mps) if finite else None
     u = points[-1].airspeed_mps
     last = points[-1].flutter
-    if last is not None and last.damping_ratio < settings.min_damping:
+    if last is None:  # nothing says this airspeed is stable: no step from it
+        return Decision(None, f"{NOT_IDENTIFIED} at {u:.3f} m/s: no damping to clear the next point on; excite it "
+                              "more (turbulence, a shaker tap) or dwell longer", trend, zw, pred)
+    if last.damping_ratio < settings.min_damping:
         return Decision(None, f"flutter-mode damping {last.damping_ratio:.4f} < {settings.min_damping}", trend, zw,
                         pred)
     if pred is not None and pred.margin(u) < settings.margin:
@@ -177,8 +190,11 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
 
 
 def _both_modes(points: Sequence[TestPoint]) -> list[TestPoint]:
-    """The points with both modes identified: those the ZW predictor fits."""
-    return [p for p in points if p.first is not None and p.flutter is not None]
+    """The points with both modes identified: those the ZW predictor fits. A first mode identified with damping <= 0
+    is left out: below the flutter speed it is the heavily damped mode (zeta ~0.2-0.6), and such an estimate is a
+    failed identification (at 1 % turbulence one read -0.017 [-1.23, 1.20] and made the point's ZW margin F
+    -1.5e6, "fluttering", beside a flutter mode at zeta 0.003)."""
+    return [p for p in points if p.first is not None and p.first.damping_ratio > 0 and p.flutter is not None]
 
 
 def _extrapolation(u: np.ndarray, y: np.ndarray, degree: int, speed_mps: float, n: int
