@@ -110,3 +110,18 @@ def test_cli_vg_json_and_plot(tmp_path, vg):
 def test_cli_vg_bad_range():
     out = _cli("flutter", "--vg", "10:8:1")
     assert out.returncode == 2 and "--vg" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_the_v_g_panel_is_linear_over_the_lightly_damped_modes(model):
+    """`panel-rig flutter --vg --plot` drew damping on a symlog axis (linear within 0.01): the flutter mode's slope
+    could not be read and its curve had a knee at -0.01. The panel is now linear over the lightly damped modes and 0;
+    the first mode (zeta 0.2-0.6) is outside it and named in the legend."""
+    from panel_rig.analysis.vg import LIGHT_DAMPING, damping_limits
+
+    z = vg_diagram(model, np.arange(3.0, 14.01, 0.5)).damping_ratio  # the review's range (at rest mode 1 is ~0)
+    (lo, hi), outside = damping_limits(z)
+    light = [i for i in range(z.shape[1]) if z[:, i].max() <= LIGHT_DAMPING]
+    assert light and lo < 0 < hi  # the flutter mode crosses zero inside the diagram
+    assert lo <= z[:, light].min() and z[:, light].max() <= hi < 0.1
+    assert outside == [i for i in range(z.shape[1]) if i not in light] and outside
+    assert damping_limits(np.array([[0.3, 0.5], [0.4, 0.6]]))[1] == []  # all heavily damped: they set the scale

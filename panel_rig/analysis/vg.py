@@ -175,14 +175,38 @@ def model_flutter_speed(model: AeroelasticModel, aero: str = "rom", rom_modes: i
     return None
 
 
+#: modes whose damping ratio stays below this over the diagram set the V-g panel's (linear) limits
+LIGHT_DAMPING = 0.1
+
+
+def damping_limits(damping_ratio: np.ndarray) -> tuple[tuple[float, float], list[int]]:
+    """Linear y limits of a V-g panel (n_airspeeds, n_modes) and the modes drawn entirely outside them: the limits
+    span the lightly damped modes (max zeta <= LIGHT_DAMPING; all modes if none is) and 0, with 8 % of room."""
+    z = np.asarray(damping_ratio, float)
+    light = [i for i in range(z.shape[1]) if np.nanmax(z[:, i]) <= LIGHT_DAMPING] or list(range(z.shape[1]))
+    lo = min(0.0, float(np.nanmin(z[:, light])))
+    hi = max(0.0, float(np.nanmax(z[:, light])))
+    pad = 0.08 * (hi - lo) if hi > lo else 0.01
+    lo, hi = lo - pad, hi + pad
+    outside = [i for i in range(z.shape[1]) if np.nanmin(z[:, i]) > hi or np.nanmax(z[:, i]) < lo]
+    return (lo, hi), outside
+
+
 def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: str = ""):
-    """V-g (damping ratio) and V-f (frequency) of the tracked structural modes, one line per mode; PNG."""
+    """V-g (damping ratio) and V-f (frequency) of the tracked structural modes, one line per mode; PNG. The damping
+    axis is linear and spans the lightly damped modes (the flutter mode's slope is what a reader takes from it); a
+    heavily damped mode outside it is named in the legend with its range."""
     from panel_rig.analysis.plots import _save, plt
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
     u = vg.airspeed_mps
+    (lo, hi), outside = damping_limits(vg.damping_ratio)
     for i in range(vg.poles.shape[1]):
-        ax1.plot(u, vg.damping_ratio[:, i], "o-", ms=3, label=f"mode {i + 1}")
+        z = vg.damping_ratio[:, i]
+        where = "above" if np.nanmin(z) > hi else "below"
+        label = f"mode {i + 1}" + (f": zeta {np.nanmin(z):.2f}..{np.nanmax(z):.2f}, {where} the panel"
+                                   if i in outside else "")
+        ax1.plot(u, z, "o-", ms=3, label=label)
         ax2.plot(u, vg.frequency_hz[:, i], "o-", ms=3, label=f"mode {i + 1}")
     for ax in (ax1, ax2):
         if flutter_speed_mps is not None:
@@ -190,9 +214,9 @@ def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: 
         ax.set_xlabel("airspeed, m/s")
         ax.legend(fontsize=8)
     ax1.axhline(0, color="k", lw=0.5)
-    # linear within +-0.01, logarithmic beyond: the first mode's damping (~0.4) set a linear scale on which the
-    # flutter mode's zero crossing (+-0.008) could not be seen
-    ax1.set_yscale("symlog", linthresh=0.01)
-    ax1.set(ylabel="damping ratio zeta = -Re s / |s| (linear within 0.01)", title=f"V-g {title}".strip())
+    # linear: a symlog axis (linear within 0.01) put a knee into the flutter mode's curve at -0.01 and left its
+    # slope unreadable; the first mode (zeta ~0.4) is named instead of setting the scale
+    ax1.set_ylim(lo, hi)
+    ax1.set(ylabel="damping ratio zeta = -Re s / |s|", title=f"V-g {title}".strip())
     ax2.set(ylabel="natural frequency |s| / 2 pi, Hz", title=f"V-f {title}".strip())
     return _save(fig, path)
