@@ -155,7 +155,8 @@ def _plot_replay(replay: FlutterTestReplay, path: Path) -> str:
     from panel_rig.analysis.plots import plot_flutter_test
 
     res = FlutterTestResult(points=list(replay.points), decisions=[replay.decision])
-    return str(plot_flutter_test(res, replay.model, replay.mode, replay.uf_mps, path))
+    title = f"flutter-test replay of the recording (panel-rig analyze): {len(res.points)} point(s)"
+    return str(plot_flutter_test(res, replay.model, replay.mode, replay.uf_mps, path, title))
 
 
 def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = ()) -> str:

@@ -283,9 +283,11 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
                    wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
         if plot is not None and (stopped is None or res.points):
+            from panel_rig.analysis.flutter_test import figure_title
             from panel_rig.analysis.plots import plot_flutter_test
 
-            out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot))
+            title = figure_title(res, cfg, variant, settings.dwell_s, "in-process")
+            out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot, title))
         if stopped is not None:
             where = "no recording" if res.bag is None else f"recording in {res.bag}"
             raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))

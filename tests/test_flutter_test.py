@@ -553,3 +553,18 @@ def test_the_replay_skips_a_step_down_as_the_live_monitor_does(monkeypatch):
     points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
                                         settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0)
     assert [p.airspeed_mps for p in points] == [6.0, 7.0, 8.0, 9.0]
+
+
+def test_the_v_g_figure_says_what_was_tested_and_how_it_ended():
+    """The flutter-test figure had no title: an interrupted test's one-point plot read as a finished result, and
+    neither the variant nor the tunnel was on it."""
+    from panel_rig.analysis.flutter_test import FlutterTestResult, figure_title
+
+    cfg = load_config()
+    res = FlutterTestResult(points=[_point(5.0)], decisions=[decide([_point(5.0)], FlutterTestSettings(5.0, 1.0))],
+                            interrupted="SIGINT")
+    title = figure_title(res, cfg, "full", 200.0, "in-process")
+    assert title.startswith("flutter test (in-process): variant full, turbulence 0.1 % (seed 0), dwell 200 s")
+    assert "stop: interrupted by SIGINT after 1 test point(s)" in title
+    quiet = figure_title(FlutterTestResult(), cfg.replace(turbulence_intensity=0.0), "exact", 20.0, "live node")
+    assert "no turbulence" in quiet and "0 point(s); stop: none" in quiet

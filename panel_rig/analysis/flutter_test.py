@@ -25,7 +25,7 @@ bands come from the model: frequencies and damping are identified from the measu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -293,13 +293,14 @@ class FlutterTestResult:
                "max_airspeed_mps": self.max_airspeed_mps,
                "fluttered": bool(self.fluttered),
                "interrupted": self.interrupted is not None,
-               "stop_reason": self._stop_reason(),
+               "stop_reason": self.stop_reason(),
                "bag": self.bag}
         for name, p in (("damping_trend", d.trend if d else None), ("zimmerman_weissenburger", d.zw if d else None)):
             out[name] = None if p is None else p.as_dict()
         return out
 
-    def _stop_reason(self) -> str | None:
+    def stop_reason(self) -> str | None:
+        """Why the test ended (flutter, the decision's stop, or the signal that interrupted it); None if it has not."""
         d = self.final
         if self.interrupted is None and self.fluttered:  # as the node's monitor says it (a first point that
             return fluttered_reason(self.max_airspeed_mps)  # fluttered gave no reason; a later one the last go-on)
@@ -307,6 +308,15 @@ class FlutterTestResult:
             return None if d is None else d.reason
         done = "" if d is None or not d.stop else f"; the procedure had stopped: {d.reason}"
         return f"interrupted by {self.interrupted} after {len(self.points)} test point(s){done}"
+
+
+def figure_title(res: FlutterTestResult, cfg: Any, variant: str, dwell_s: float, how: str) -> str:
+    """The V-g figure's title: what was tested (variant, tunnel turbulence and seed, dwell; ``how``: live node or
+    in-process) and how it ended, so a figure of a test cut short does not read as a finished one."""
+    tunnel = (f"turbulence {100 * cfg.turbulence_intensity:g} % (seed {cfg.turbulence_seed})"
+              if cfg.turbulence_intensity > 0 else "no turbulence")
+    return (f"flutter test ({how}): variant {variant}, {tunnel}, dwell {dwell_s:g} s\n"
+            f"{len(res.points)} point(s); stop: {res.stop_reason() or 'none'}")
 
 
 def fluttered_reason(airspeed_mps: float) -> str:

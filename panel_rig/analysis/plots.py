@@ -351,12 +351,13 @@ def _off_scale_notes(ax, grid: np.ndarray, damping: np.ndarray, mode: int, shown
             ax.plot([], [], " ", label=f"model mode {k + 1}: zeta {z.min():.2f}..{z.max():.2f}, off the panel")
 
 
-def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Path) -> Path:
+def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Path, title: str = "") -> Path:
     """The flutter test's V-g: the model's damping and frequency of every mode (solid: the flutter mode), the
     identified points with their 95 % bars, the damping-trend extrapolation, both predicted U_f (damping trend
     and Zimmerman–Weissenburger), and when the result holds a ZW prediction a panel of the ZW flutter margin per
     point with its extrapolation. Damping limits show every point and bar (a huge bar is cut, marked); the
-    legend is below the panels, off the data. ``res``: a FlutterTestResult (its points and final decision)."""
+    legend is below the panels, off the data. ``res``: a FlutterTestResult (its points and final decision);
+    ``title`` above the panels (what was tested and how it ended)."""
     from panel_rig.analysis.flutter_test import trend_curve
     from panel_rig.analysis.vg import vg_diagram
 
@@ -421,4 +422,6 @@ def plot_flutter_test(res: Any, model: Any, mode: int, uf: float, path: str | Pa
     ax_f.set_ylabel("frequency (Hz)")
     ax_f.set_xlabel("airspeed (m/s)")
     fig.legend(loc="outside lower center", ncols=2, fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
     return _save(fig, path)

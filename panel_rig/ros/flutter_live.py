@@ -164,9 +164,11 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
                    monitor_times_s=[float(r["sim_time_s"]) for r in results],
                    identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
         if plot is not None and (stopped is None or res.points):
+            from panel_rig.analysis.flutter_test import figure_title
             from panel_rig.analysis.plots import plot_flutter_test
 
-            out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot))
+            title = figure_title(res, cfg, variant, settings.dwell_s, "live node")
+            out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot, title))
         if stopped is not None:
             where = f"recording and node log in {run_dir}"
             raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
