@@ -269,7 +269,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
             f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {_hz(p['dominant_frequency_hz']):>6} "
-            f"{p['growth_rate_per_s']:>8.3f} {p['status']}"
+            f"{round(p['growth_rate_per_s'], 3) + 0.0:>8.3f} {p['status']}"  # + 0.0: no '-0.000'
         )
     for p in result["plateaus"]:  # a force held on the shaker: the table's RMS is the motion about the deflection
         mean = p.get("mean_tip_w_over_L") or 0.0

@@ -548,7 +548,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if args.dwell is not None and not MIN_DWELL_S <= args.dwell <= MAX_DWELL_S:
         raise UsageError(f"--dwell must be in [{MIN_DWELL_S:g}, {MAX_DWELL_S:g}] s (simulated), got {args.dwell}")
     if args.start_mps is not None and not args.start_mps > 0.0:
-        raise UsageError("--start-mps must be > 0")
+        raise UsageError(f"--start-mps must be a number > 0 (m/s), got {args.start_mps}")
     if args.start_mps is not None:
         try:
             _airspeed(args.start_mps)
@@ -750,7 +750,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("flutter-test", help="automatic flutter clearance: step up, identify, predict, stop short")
     _common(p)
-    p.add_argument("--variant", choices=tuple(VARIANTS), default="full")
+    p.add_argument("--variant", choices=tuple(VARIANTS), default="full",
+                   help="the rig's structure (default: %(default)s, the paper's cubic panel)")
     p.add_argument("--start-mps", type=float, metavar="U0", help="first test point (default: half the model's U_f)")
     p.add_argument("--margin", type=float, default=0.1, metavar="M", help="required speed margin (default 0.1)")
     p.add_argument("--dwell", type=float, metavar="S",

@@ -916,3 +916,17 @@ def test_a_tap_s_decay_is_fitted_above_its_floor_and_apart_from_faster_modes(rat
     assert np.mean(rates) == pytest.approx(sigma, rel=0.05)
     assert np.all(np.abs(np.array(rates) / sigma - 1) < 0.3), rates
     assert np.mean(plain) > 0.6 * sigma
+
+
+def test_a_rate_that_rounds_to_zero_has_no_minus_sign() -> None:
+    """A stationary plateau's fitted rate of -0.0001 1/s printed as '-0.000' in the table."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+    from panel_rig.analyze_cli import format_table
+
+    plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 10.0, "airspeed_mps": 6.0, "rms_tip_w_over_L": 1e-5,
+               "peak_tip_w_over_L": 3e-5, "dominant_frequency_hz": 26.0, "growth_rate_per_s": -1e-4,
+               "status": "stationary"}
+    result = {"bag": "b", "duration_s": 10.0, "samples": 5000, "panel_length_m": 0.27, "panel_length_source": "bag",
+              "plateaus": [plateau], "onset": estimate_onset([plateau])}
+    row = next(line for line in format_table(result).splitlines() if line.endswith("stationary"))
+    assert " 0.000 stationary" in row and "-0.000" not in row, row

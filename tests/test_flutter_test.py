@@ -348,6 +348,8 @@ def test_cli_flutter_test_stopped_by_sigterm_reports_its_points(tmp_path, capsys
 @pytest.mark.parametrize(("start_mps", "message"), [
     ("150", "--start-mps: airspeed must be in [0, 100] m/s"),
     ("30", "--start-mps 30 m/s is above the rig's airspeed limit 20.96"),
+    ("0", "--start-mps must be a number > 0 (m/s), got 0.0"),
+    ("nan", "--start-mps must be a number > 0 (m/s), got nan"),
 ])
 def test_a_start_the_rig_would_refuse_exits_2_before_anything_is_recorded(tmp_path, capsys, start_mps, message):
     """--start-mps 150 printed the margin warning, ran the pre-test analysis, left a bag in --bag-dir and only then
