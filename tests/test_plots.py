@@ -205,8 +205,10 @@ def test_lco_vs_airspeed_of_a_subcritical_run_says_why_its_frequency_panel_is_em
     ax1, ax2 = figures[0].axes
     assert ax2.get_xlim() == ax1.get_xlim() and not ax2.lines
     assert any("no LCO frequency" in t.get_text() for t in ax2.texts)
+    assert ax1.get_title() == "(a) RMS response (no plateau at an LCO)"  # it read "(a) LCO amplitude"
     plots.plot_lco_vs_airspeed(tmp_path / "b.png", [*quiet, {**quiet[0], "airspeed_mps": 11.0, "status": "lco"}])
     assert not figures[1].axes[1].texts and figures[1].axes[1].lines
+    assert figures[1].axes[0].get_title() == "(a) LCO amplitude"
 
 
 def test_time_history_status_labels_sit_below_the_airspeed_curve(tmp_path, monkeypatch):

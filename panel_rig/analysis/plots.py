@@ -180,7 +180,7 @@ def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray
 def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict | None = None) -> Path:
     """Fig. 8 from a recording: RMS tip w/L and dominant frequency per airspeed plateau."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
-    if not any(p["status"] in ("lco", "growing") for p in plateaus):  # a subcritical run (a flutter test)
+    if not _any_lco(plateaus):  # a subcritical run (a flutter test)
         ax2.text(0.5, 0.5, "no plateau at an LCO or growing:\nno LCO frequency", transform=ax2.transAxes,
                  ha="center", va="center", color="0.4")
     for status, (color, marker) in _STATUS_STYLE.items():
@@ -200,10 +200,19 @@ def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict
             ax.axvline(ex, color="k", ls="--", lw=1, label=f"extrapolated {ex:.2f} m/s")
         ax.grid(alpha=0.3)
         ax.set_xlabel("airspeed, m/s")
-    ax1.set(ylabel="RMS tip w/L", title="(a) LCO amplitude")
+    ax1.set(ylabel="RMS tip w/L", title=lco_amplitude_title(plateaus))
     ax2.set(ylabel="dominant frequency, Hz", title="(b) LCO frequency")
     ax1.legend(fontsize=8)
     return _save(fig, path)
+
+
+def _any_lco(plateaus: Sequence[dict]) -> bool:
+    return any(p["status"] in ("lco", "growing") for p in plateaus)
+
+
+def lco_amplitude_title(plateaus: Sequence[dict]) -> str:
+    """Panel (a)'s title: a run with no plateau at an LCO shows random or decaying response, not LCO amplitude."""
+    return "(a) LCO amplitude" if _any_lco(plateaus) else "(a) RMS response (no plateau at an LCO)"
 
 
 def plot_control_damping(speeds: np.ndarray, open_roots: list[np.ndarray], closed_roots: list[np.ndarray],
