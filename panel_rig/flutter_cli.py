@@ -300,7 +300,8 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     def num(x: Any, fmt: str) -> str:
         return "-" if x is None else format(x, fmt)
 
-    lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method"]
+    lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method" if out["test_points"]
+             else "no test point identified (see stop)"]  # a header over no rows read as a lost table
     for k, p in enumerate(out["test_points"], 1):
         ci = p["damping_ci"]
         ci_s = "-" if ci is None else f"[{ci[0]:.4f}, {ci[1]:.4f}]"

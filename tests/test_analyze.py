@@ -779,6 +779,10 @@ def test_a_replay_without_a_prediction_says_why_not_none() -> None:
            "simulated_s": 30.0, "wall_s": 3.0}
     text = format_flutter_test(run)
     assert "None" not in text and "bag: -; plot: -;" in text and f"{NO_PREDICTION}; model linear U_f 10.480 m/s" in text
+    assert text.splitlines()[0].split() == ["#", "U_mps", "f_Hz", "zeta", "zeta", "95%", "CI", "method"]
+    # a test whose first point fluttered printed the header over no rows
+    none = format_flutter_test({**run, "test_points": [], "fluttered": True})
+    assert none.splitlines()[0] == "no test point identified (see stop)", none
     with_one = format_flutter_test({**run, "predicted_flutter_speed_mps": 10.4, "prediction_method": "damping-trend",
                                     "predicted_flutter_speed_ci_mps": [10.1, None]})
     assert "predicted U_f 10.400 m/s (95 % 10.100 .. open) [damping-trend]; model linear U_f 10.480 m/s" in with_one
