@@ -611,8 +611,9 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         # a negative number in exponent form is a value, not an option: `--tip-force -5e0` was "expected one
-        # argument" (argparse's own pattern knows -5 and -.5 only; no option of ours looks like a number)
-        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+        # argument" (argparse's own pattern knows -5 and -.5 only; no option of ours looks like a number). A range
+        # that starts below zero (`--vg -5:20:1`) is a value too: it gets the range's own message, not argparse's
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(:[^:\s]*)*$")
 
     def error(self, message: str) -> None:  # one line, status 2
         raise UsageError(message)

@@ -386,3 +386,14 @@ def test_the_lco_table_shows_a_missing_value_one_way() -> None:
     lines = _key_value_table({"dominant_frequency_hz": float("nan"), "steady_after_s": None, "rms": 0.0,
                               "diverged": False}).splitlines()
     assert [line.split()[-1] for line in lines] == ["-", "-", "0.0", "False"]
+
+
+def test_a_range_that_starts_below_zero_gets_the_range_s_message(capsys):
+    """`flutter --vg -5:20:1` said "argument --vg: expected one argument" (argparse took the range for an option);
+    only `--vg=-5:20:1` reached the range's check."""
+    from panel_rig.cli import main
+
+    assert main(["flutter", "--vg", "-5:20:1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--vg START: airspeed must be in [0, 100] m/s" in err, err
+    assert "expected one argument" not in err
