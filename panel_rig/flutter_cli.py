@@ -37,8 +37,15 @@ from panel_rig.processes import (
 NAMESPACE = "/rig"
 
 
+class RecordingStopped(BaseException):
+    """The bag writer failed (a full disk): the in-process test stops there, the bag written so far kept. A
+    BaseException, so the rig's ``except Exception`` around its sinks (a viewer must not stop the rig) lets it
+    through: a test whose recording failed went on for its whole course, printing the sink's traceback."""
+
+
 class BagSink:
-    """Rig sink writing the node's reading topics and the airspeed commands to a BagWriter."""
+    """Rig sink writing the node's reading topics and the airspeed commands to a BagWriter. A failed write
+    (``failure``) raises :class:`RecordingStopped` once; later writes are skipped."""
 
     def __init__(self, writer: Any, n_modes: int, cfg: Any) -> None:
         from panel_rig.ros import messages
@@ -47,6 +54,19 @@ class BagSink:
         self.msgs = messages.ReadingMessages([f"q{i + 1}" for i in range(n_modes)],
                                              cfg.airfoil_length_m + cfg.panel_length_m, cfg.panel_length_m)
         self.last_ns = 0
+        self.failure: Exception | None = None
+
+    def write(self, topic: str, msg: Any, stamp_ns: int, **kwargs: Any) -> None:
+        """``writer.write``, or nothing after a failure; the first failure raises RecordingStopped."""
+        from panel_rig.recording.errors import RecordingError
+
+        if self.failure is not None:
+            return
+        try:
+            self.writer.write(topic, msg, stamp_ns, **kwargs)
+        except (OSError, RecordingError) as exc:
+            self.failure = exc
+            raise RecordingStopped(str(exc)) from exc
 
     def on_reading(self, reading: Any) -> None:
         from panel_rig.rig.reading import ReadingBlock
@@ -62,7 +82,7 @@ class BagSink:
         for stamp_ns, *encoded in m.encode(block):
             for name, msg, data in zip(names, objs, encoded):
                 if name is not None:
-                    self.writer.write(f"{NAMESPACE}/{name}", msg, stamp_ns, data=data)
+                    self.write(f"{NAMESPACE}/{name}", msg, stamp_ns, data=data)
             self.last_ns = stamp_ns
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
@@ -72,8 +92,8 @@ class BagSink:
 
         from panel_rig.ros import messages
 
-        self.writer.write(f"{NAMESPACE}/airspeed_cmd", Float64(data=float(value)), messages.stamp_ns(time_s),
-                          qos="reliable")
+        self.write(f"{NAMESPACE}/airspeed_cmd", Float64(data=float(value)), messages.stamp_ns(time_s),
+                   qos="reliable")
 
     def close(self) -> None:
         pass
@@ -191,7 +211,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     if warning is not None and progress is not None:
         progress(warning)
     sinks: list[Any] = []
-    writer = None
+    writer = bag_sink = None
     if bag_dir is not None:
         from panel_rig.recording import BagWriter, fresh_bag_dir
 
@@ -205,7 +225,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         writer.write_parameters({**flat, **(params or {}), "model.variant": variant, "flutter_monitor": True,
                                  "flutter_test.margin": margin, "flutter_test.settle_s": settings.settle_s,
                                  "flutter_test.dwell_s": settings.dwell_s, "flutter_test.hold": True})
-        sinks.append(BagSink(writer, len(np.atleast_1d(st.q)), cfg))
+        bag_sink = BagSink(writer, len(np.atleast_1d(st.q)), cfg)
+        sinks.append(bag_sink)
     viz = None
     if rerun:
         from panel_rig.viz import RerunLogger
@@ -220,16 +241,19 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     history: list[tuple[float, Any, Any]] = []
     res = FlutterTestResult()
     measure, bands = RigMeasure(rig, settings, atomic=signals_deferred), bands_from_model(st.model, mode)
+    short = None if writer is None else disk_warning(writer.bag_dir, settings, measure.dt_s)
+    if short is not None and progress is not None:
+        progress(short)
 
     def record_monitor(point: Any, decision: Any, fluttered: bool = False) -> None:
         """The monitor's message of a point, as the node records it (with the plateau's sim_time_s)."""
-        if writer is not None:
+        if bag_sink is not None:
             stamp = messages.stamp_ns(rig.time_s)
             band = bands(point.airspeed_mps)[1]
             plateau = {"point_index": len(history) + 1, "plateau_start_s": measure.plateau_start_s,
                        "settle_s": settings.settle_s, "dwell_s": settings.dwell_s, "sim_time_s": rig.time_s,
                        "flutter_band_low_hz": band[0], "flutter_band_high_hz": band[1]}
-            writer.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(stamp, point, decision, margin, fluttered=fluttered,
+            bag_sink.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(stamp, point, decision, margin, fluttered=fluttered,
                                                              plateau=plateau), stamp, qos="reliable")
 
     def on_point(point: Any, decision: Any) -> None:
@@ -254,6 +278,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             # being marched and recorded (a Ctrl-C inside the bag writer left a bag its summary did not match)
             with sigterm_exits():
                 run_procedure(measure, bands, settings, on_point, res, on_flutter=on_flutter)
+        except RecordingStopped:
+            pass  # bag_sink.failure says why; reported once the wind is off and the bag closed as far as it can be
         except (KeyboardInterrupt, SystemExit) as exc:
             stopped = interruption(exc)
             if stopped is None:
@@ -271,10 +297,11 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                 for s in sinks:
                     if hasattr(s, "flush_blocks"):
                         s.flush_blocks()
-                if writer is not None:
-                    writer.close()
+                close_recording(writer, bag_sink)
                 if viz is not None:
                     viz.close()
+        if bag_sink is not None and bag_sink.failure is not None:
+            raise RuntimeError(recording_failed_message(bag_sink.failure, len(history), rig.time_s, writer.bag_dir))
         if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
             interrupted_result(res, settings, stopped.name)
         res.bag = str(writer.bag_dir) if writer is not None else None
@@ -292,6 +319,48 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             where = "no recording" if res.bag is None else f"recording in {res.bag}"
             raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
         return out
+
+
+#: bytes the in-process test's bag takes per tip sample (the measured and true tip, the airspeed; 7.66 MB for 50 s
+#: at 512 samples/s, 2026-12-05)
+BAG_BYTES_PER_SAMPLE = 300
+
+
+def disk_warning(bag_dir: Path, settings: Any, sample_dt_s: float) -> str | None:
+    """A warning when the test's longest course (every point's settle and dwell) could record more than the disk
+    under ``bag_dir`` has free; None when it fits."""
+    import shutil
+
+    longest_s = settings.max_points * (settings.settle_s + settings.dwell_s)
+    need = BAG_BYTES_PER_SAMPLE * longest_s / sample_dt_s
+    free = shutil.disk_usage(bag_dir).free
+    if need <= free:
+        return None
+    return (f"warning: {settings.max_points} test points of {settings.settle_s + settings.dwell_s:g} s could "
+            f"record about {need / 1e6:.0f} MB; {bag_dir} has {free / 1e6:.0f} MB free (a full disk stops the test, "
+            "the bag written so far kept)")
+
+
+def close_recording(writer: Any, bag_sink: BagSink | None) -> None:
+    """Close the bag; after a failed write its summary may not fit either (the disk is still full): the bag is
+    left for ``bag recover``, its lock released."""
+    from panel_rig.recording.errors import RecordingError
+
+    if writer is None:
+        return
+    try:
+        writer.close()
+    except (OSError, RecordingError):
+        if bag_sink is None or bag_sink.failure is None:
+            raise
+
+
+def recording_failed_message(failure: Exception, n_points: int, time_s: float, bag_dir: Path) -> str:
+    """The line a test whose recording failed ends with: where, why, and how to get the bag back."""
+    why = failure.strerror if isinstance(failure, OSError) and failure.strerror else failure
+    return (f"the recording failed after {n_points} test point(s), at t = {time_s:.1f} s simulated: {why}; "
+            f"the test stopped there. Free some space, then `panel-rig bag recover {bag_dir}` rebuilds what was "
+            "written")
 
 
 def format_flutter_test(out: dict[str, Any]) -> str:

@@ -570,3 +570,51 @@ def test_the_v_g_figure_says_what_was_tested_and_how_it_ended():
     assert "stop: interrupted by SIGINT after 1 test point(s)" in title
     quiet = figure_title(FlutterTestResult(), cfg.replace(turbulence_intensity=0.0), "exact", 20.0, "live node")
     assert "no turbulence" in quiet and "0 point(s); stop: none" in quiet
+
+
+def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_path, capsys, monkeypatch):
+    """A full disk under --bag-dir (a 3 MB tmpfs, 2026-12-05): the bag sink's traceback was printed five times, the
+    test marched on to its end with nothing recorded, and it died on 'cannot finish'. Now the first failed write
+    stops the test: one line says where and how to get the bag back, and what was written is readable."""
+    import errno
+
+    from panel_rig.analyze_cli import analyze_bag
+    from panel_rig.cli import main
+    from panel_rig.recording import BagWriter
+
+    real_write, calls = BagWriter.write, []
+
+    def write_until_full(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) > 12_000:  # about 8 s of readings (3 topics at 512 samples/s)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(self, *args, **kwargs)
+
+    monkeypatch.setattr(BagWriter, "write", write_until_full)
+    code = main(["flutter-test", "--in-process", "--dwell", "20", "--bag-dir", str(tmp_path),
+                 "--plot", str(tmp_path / "vg.png")])
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert code == 1 and "Traceback" not in err, err
+    assert last.startswith("panel-rig flutter-test: the recording failed after 0 test point(s), at t = 8.0 s"), last
+    assert "No space left on device; the test stopped there" in last and "bag recover" in last
+    (bag,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    monkeypatch.setattr(BagWriter, "write", real_write)
+    assert 7.5 < analyze_bag(bag)["duration_s"] < 8.1
+
+
+def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path, monkeypatch):
+    """--dwell 1000 could record 1.9 GB (12 points); nothing said so before the disk filled."""
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    settings = default_plan(10.0, 0.1, None, dwell_s=1000.0)
+    n = settings.max_points
+    need_mb = 300 * n * 1005 * 512 / 1e6
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(1e13, 0, 1e6 * need_mb * 1.01))
+    assert flutter_cli.disk_warning(tmp_path, settings, 1 / 512) is None
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(1e13, 0, 3e6))
+    text = flutter_cli.disk_warning(tmp_path, settings, 1 / 512)
+    assert text == (f"warning: {n} test points of 1005 s could record about {need_mb:.0f} MB; "
+                    f"{tmp_path} has 3 MB free (a full disk stops the test, the bag written so far kept)")

@@ -768,3 +768,24 @@ def test_a_bag_written_out_of_time_order_is_read_in_time_order(tmp_path: Path) -
     np.testing.assert_allclose(rec.tip_w_over_L * rec.panel_length_m, (rec.t_s * 1e9) * 1e-12, rtol=1e-12)
     np.testing.assert_allclose(rec.airspeed_mps, 5.0 + rec.t_s, rtol=1e-12)
     assert rec.commands["airspeed_cmd"] == [(stamps[20] * 1e-9, 6.0)]
+
+
+def test_a_bag_that_cannot_be_finished_closes_its_file_and_releases_its_lock(tmp_path: Path) -> None:
+    """A full disk fails the summary's write: the file was left open (and its lock taken) when `close` raised."""
+    import errno
+
+    from std_msgs.msg import Float64
+
+    bag_dir = tmp_path / "full"
+    writer = BagWriter(bag_dir)
+    writer.write("/rig/airspeed", Float64(data=1.0), 1)
+
+    def no_space() -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    writer._writer.finish = no_space
+    with pytest.raises(RecordingError, match="cannot finish .*No space left on device"):
+        writer.close()
+    from panel_rig.recording.lock import lock_holder
+
+    assert writer._stream.closed and lock_holder(bag_dir) is None  # `bag recover` may take it

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import struct
@@ -503,6 +504,8 @@ class BagWriter:
                 self._writer.finish()
                 self._stream.close()
             except OSError as exc:
+                with contextlib.suppress(OSError):  # the file's descriptor, not left open (a full disk fails twice)
+                    self._stream.close()
                 raise RecordingError(f"cannot finish {self.mcap_path}: {exc.strerror or exc}") from None
             write_metadata(self.bag_dir, self._summary)
         finally:
