@@ -276,3 +276,17 @@ def test_flutter_test_refuses_a_domain_where_another_rig_takes_its_commands(ros_
         rclpy.shutdown(context=ctx)
         stop(other, 60)
     assert out.returncode == 1 and "choose another --domain-id" in out.stderr, out.stderr[-2000:]
+
+
+def test_a_node_whose_recording_failed_stops_the_live_test():
+    """A full disk under --bag-dir (a 4 MB tmpfs, 2026-12-05): the node ran on with its recording failed (it says
+    so in /diagnostics), and the live test would have gone on recording nothing. The client stops on that status
+    with the node's reason and how to get the bag back (the whole run, measured by hand: exit 1 after 52 s
+    simulated, the bag recovered)."""
+    pytest.importorskip("rclpy")
+    from panel_rig.ros.flutter_client import recording_failure
+
+    assert recording_failure({}) is None and recording_failure({"recording": "on"}) is None
+    why = recording_failure({"recording": "failed", "last_recording_error": "cannot write b.mcap: No space left"})
+    assert why.startswith("the rig node's recording failed (cannot write b.mcap: No space left); the test stopped")
+    assert "`panel-rig bag recover` on the run's rig_* bag" in why

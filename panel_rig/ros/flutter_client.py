@@ -79,6 +79,9 @@ class FlutterTestClient(Node):
             raise stop_exception(self.stop)
         if not self.alive():
             raise RigGone("the rig node exited")
+        failure = recording_failure(self.diagnostics)
+        if failure is not None:
+            raise RigGone(failure)
         self._check_alone()
         if time.monotonic() - self._last_heard > self.timeout_s:
             raise RigGone(f"nothing from the rig node for {self.timeout_s:g} s (wall)")
@@ -152,6 +155,16 @@ class FlutterTestClient(Node):
         end = time.monotonic() + wall_s
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
+
+
+def recording_failure(diagnostics: dict[str, str]) -> str | None:
+    """Why the test stops when the node's /diagnostics say its recording failed (a full disk: the node runs on and
+    says so, and a test going on would record nothing); None while it records."""
+    if diagnostics.get("recording") != "failed":
+        return None
+    why = diagnostics.get("last_recording_error") or "?"
+    return (f"the rig node's recording failed ({why}); the test stopped there. Free some space, then "
+            "`panel-rig bag recover` on the run's rig_* bag rebuilds what was written")
 
 
 def finite_or_none(x: float) -> float | None:
