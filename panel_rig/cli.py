@@ -541,7 +541,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     from panel_rig.flutter_cli import format_flutter_test, run_flutter_test
 
     if not 0 < args.margin < 1:
-        raise UsageError("--margin must be in (0, 1)")
+        raise UsageError(f"--margin must be in (0, 1), got {args.margin}")
     cfg = _config(args)
     from panel_rig.rig.flutter_run import MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
 
@@ -555,7 +555,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
         except UsageError as exc:
             raise UsageError(f"--start-mps: {exc}") from None
     if args.max_points is not None and args.max_points < 1:
-        raise UsageError("--max-points must be >= 1")
+        raise UsageError(f"--max-points must be >= 1, got {args.max_points}")
     if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
         raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
     if args.domain_id is not None and args.in_process:  # accepted and silently meaningless before

@@ -618,3 +618,16 @@ def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path,
     text = flutter_cli.disk_warning(tmp_path, settings, 1 / 512)
     assert text == (f"warning: {n} test points of 1005 s could record about {need_mb:.0f} MB; "
                     f"{tmp_path} has 3 MB free (a full disk stops the test, the bag written so far kept)")
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("--margin", "nan", "--margin must be in (0, 1), got nan"),
+    ("--margin", "1", "--margin must be in (0, 1), got 1.0"),
+    ("--max-points", "0", "--max-points must be >= 1, got 0"),
+])
+def test_a_bad_margin_or_point_count_is_named_with_its_value(tmp_path, capsys, option, value, message):
+    from panel_rig.cli import main
+
+    assert main(["flutter-test", "--in-process", option, value, "--bag-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(message) and "\n" not in err, err
