@@ -934,3 +934,16 @@ def test_a_rate_that_rounds_to_zero_has_no_minus_sign() -> None:
               "plateaus": [plateau], "onset": estimate_onset([plateau])}
     row = next(line for line in format_table(result).splitlines() if line.endswith("stationary"))
     assert " 0.000 stationary" in row and "-0.000" not in row, row
+
+
+@pytest.mark.parametrize("n", [10, 27, 28, 60])
+def test_a_tap_s_free_response_too_short_to_fit_gives_no_rate_not_an_error(n: int) -> None:
+    """A free response of 10 samples (a tap just before a plateau's end) made the band-pass filter raise (its
+    padding needs 27 samples). Too short for the filter or for the fit's windows is no fit now."""
+    from panel_rig.analysis.decay import tap_decay
+
+    t = np.arange(n) / 500.0
+    x = np.exp(-t) * np.sin(2 * np.pi * 23.0 * t)
+    assert tap_decay(x, 1 / 500.0, 0.1) is None  # 4 windows of 50 samples needed
+    fit = tap_decay(x, 1 / 500.0, 0.002)  # windows of 2 samples: only the filter's padding limits it
+    assert (fit is None) == (n <= 27)

@@ -30,6 +30,7 @@ MAX_BAND_NYQUIST = 0.9  # the band's upper edge at most this fraction of the Nyq
 MIN_WINDOWS = 4  # envelope windows the fit needs
 MIN_DECAY_WINDOWS = 3  # windows in which the free decay must stand above the floor for its rate to count
 FREQUENCY_PART = 4  # the tap's frequency is the dominant one of the first 1/FREQUENCY_PART of the free response
+FILTER_PAD_SAMPLES = 3 * (2 * BAND_ORDER + 1)  # sosfiltfilt's default padding of the band-pass (BAND_ORDER sections)
 
 
 class FloorDecay(NamedTuple):
@@ -92,10 +93,13 @@ def tap_decay(x: np.ndarray, dt_s: float, window_s: float) -> tuple[FloorDecay, 
     """The tapped mode's decay in a free response x (samples every dt_s, s; windows of window_s, s) and the band
     it was taken in (Hz); None when there is no band, no fit, no decay (sigma >= 0) or the decay stands above its
     floor in fewer than MIN_DECAY_WINDOWS windows (the caller keeps its plain envelope rate)."""
+    n_w = max(2, int(round(window_s / dt_s)))
+    # too short for the fit's windows, or for the filter's padding (sosfiltfilt raised on 10 samples)
+    if np.size(x) < max(MIN_WINDOWS * n_w, FILTER_PAD_SAMPLES + 1):
+        return None
     band = mode_band_hz(x, dt_s)
     if band is None:
         return None
-    n_w = max(2, int(round(window_s / dt_s)))
     env = window_std(band_limited(x, dt_s, band), n_w)
     fit = fit_floor_decay(env, (np.arange(env.size) + 0.5) * n_w * dt_s)
     if fit is None or fit.rate_per_s >= 0 or fit.decay_windows < MIN_DECAY_WINDOWS:
