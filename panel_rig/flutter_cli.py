@@ -26,6 +26,7 @@ from typing import Any, Callable
 import numpy as np
 
 from panel_rig.processes import (
+    Aborted,
     Interrupted,
     StopRequest,
     interruption,
@@ -35,6 +36,10 @@ from panel_rig.processes import (
 )
 
 NAMESPACE = "/rig"
+
+
+#: what stopped a test whose recording failed, in its stop reason ("interrupted by a failed recording after ...")
+RECORDING_FAILED = "a failed recording"
 
 
 class RecordingStopped(BaseException):
@@ -253,8 +258,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             plateau = {"point_index": len(history) + 1, "plateau_start_s": measure.plateau_start_s,
                        "settle_s": settings.settle_s, "dwell_s": settings.dwell_s, "sim_time_s": rig.time_s,
                        "flutter_band_low_hz": band[0], "flutter_band_high_hz": band[1]}
-            bag_sink.write(f"{NAMESPACE}/{TOPIC}", monitor_msg(stamp, point, decision, margin, fluttered=fluttered,
-                                                             plateau=plateau), stamp, qos="reliable")
+            msg = monitor_msg(stamp, point, decision, margin, fluttered=fluttered, plateau=plateau)
+            bag_sink.write(f"{NAMESPACE}/{TOPIC}", msg, stamp, qos="reliable")
 
     def on_point(point: Any, decision: Any) -> None:
         with signals_deferred():  # a stop waits until the point is recorded whole
@@ -293,28 +298,32 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                     on_point(res.points[-1], res.decisions[-1])
         finally:
             with signals_deferred():  # a second Ctrl-C waits until the recording is closed
-                rig.command_airspeed(0.0)
+                # the wind-off is applied before its record is written, and that write may be the one that fails
+                # (bag_sink.failure then says why)
+                with contextlib.suppress(RecordingStopped):
+                    rig.command_airspeed(0.0)
                 for s in sinks:
                     if hasattr(s, "flush_blocks"):
                         s.flush_blocks()
                 close_recording(writer, bag_sink)
                 if viz is not None:
                     viz.close()
-        if bag_sink is not None and bag_sink.failure is not None:
-            raise RuntimeError(recording_failed_message(bag_sink.failure, len(history), rig.time_s, writer.bag_dir))
-        if stopped is not None:  # after the wind-off: this may take a decision (a bootstrap) still
-            interrupted_result(res, settings, stopped.name)
+        failed = None if bag_sink is None or bag_sink.failure is None else bag_sink.failure
+        if stopped is not None or failed is not None:  # after the wind-off: this may take a decision (a bootstrap)
+            interrupted_result(res, settings, RECORDING_FAILED if stopped is None else stopped.name)
         res.bag = str(writer.bag_dir) if writer is not None else None
         out = res.as_dict()
         out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
                    wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
-        if plot is not None and (stopped is None or res.points):
+        if plot is not None and (res.interrupted is None or res.points):
             from panel_rig.analysis.flutter_test import figure_title
             from panel_rig.analysis.plots import plot_flutter_test
 
             title = figure_title(res, cfg, variant, settings.dwell_s, "in-process")
             out["plot"] = str(plot_flutter_test(res, st.model, mode, uf, plot, title))
+        if failed is not None:  # the points so far are reported as an interrupted test's, then the line why
+            raise Aborted(out, recording_failed_message(failed, len(res.points), rig.time_s, writer.bag_dir))
         if stopped is not None:
             where = "no recording" if res.bag is None else f"recording in {res.bag}"
             raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))

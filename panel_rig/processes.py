@@ -119,6 +119,16 @@ class Interrupted(BaseException):
         return 128 + int(self.signum)
 
 
+class Aborted(RuntimeError):
+    """A run stopped by a failure it cannot go on through (its recording failed, its rig node was lost), with what
+    it measured so far (``payload``, to report as an interrupted run's) and the line that says why (``message``).
+    A RuntimeError: a caller that does not report the payload still prints the line (exit 1)."""
+
+    def __init__(self, payload: dict, message: str) -> None:
+        super().__init__(message)
+        self.payload, self.message = payload, message
+
+
 def module_command(module: str, *args: str) -> list[str]:
     """``python -P -m module args``: a child program of this install. ``-P`` keeps the working directory off
     sys.path, so a ``panel_rig/`` directory where the user stands (another checkout) is never what the child runs

@@ -575,8 +575,10 @@ def test_the_v_g_figure_says_what_was_tested_and_how_it_ended():
 def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_path, capsys, monkeypatch):
     """A full disk under --bag-dir (a 3 MB tmpfs, 2026-12-05): the bag sink's traceback was printed five times, the
     test marched on to its end with nothing recorded, and it died on 'cannot finish'. Now the first failed write
-    stops the test: one line says where and how to get the bag back, and what was written is readable."""
+    stops the test: one line says where and how to get the bag back, and what was written is readable. The points
+    identified before it are reported as an interrupted test's (they were in the progress lines only)."""
     import errno
+    import json
 
     from panel_rig.analyze_cli import analyze_bag
     from panel_rig.cli import main
@@ -586,21 +588,53 @@ def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_p
 
     def write_until_full(self, *args, **kwargs):
         calls.append(1)
-        if len(calls) > 12_000:  # about 8 s of readings (3 topics at 512 samples/s)
+        if len(calls) > 80_000:  # about 52 s of readings (3 topics at 512 samples/s): two 20 s dwells and more
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(self, *args, **kwargs)
+
+    monkeypatch.setattr(BagWriter, "write", write_until_full)
+    code = main(["flutter-test", "--in-process", "--dwell", "20", "--bag-dir", str(tmp_path), "--json",
+                 "--plot", str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    err, out = captured.err, json.loads(captured.out)
+    last = err.strip().splitlines()[-1]
+    assert code == 1 and "Traceback" not in err, err
+    assert last.startswith("panel-rig flutter-test: the recording failed after 2 test point(s), at t = 5"), last
+    assert "No space left on device; the test stopped there" in last and "bag recover" in last
+    assert len(out["test_points"]) == 2 and out["interrupted"] and out["fluttered"] is False
+    assert out["stop_reason"] == "interrupted by a failed recording after 2 test point(s)"
+    assert (tmp_path / "vg.png").is_file() and out["plot"] == str(tmp_path / "vg.png")
+    (bag,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert out["bag"] == str(bag)
+    monkeypatch.setattr(BagWriter, "write", real_write)
+    assert out["simulated_s"] - 1.0 < analyze_bag(bag)["duration_s"] < out["simulated_s"] + 0.1
+
+
+def test_a_full_disk_before_any_point_says_so_in_the_table(tmp_path, capsys, monkeypatch):
+    """The same stop 8 s into the first dwell: the table says no point was identified and why the test ended."""
+    import errno
+
+    from panel_rig.cli import main
+    from panel_rig.recording import BagWriter
+
+    real_write, calls = BagWriter.write, []
+
+    def write_until_full(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) > 12_000:
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write(self, *args, **kwargs)
 
     monkeypatch.setattr(BagWriter, "write", write_until_full)
     code = main(["flutter-test", "--in-process", "--dwell", "20", "--bag-dir", str(tmp_path),
                  "--plot", str(tmp_path / "vg.png")])
-    err = capsys.readouterr().err
-    last = err.strip().splitlines()[-1]
-    assert code == 1 and "Traceback" not in err, err
-    assert last.startswith("panel-rig flutter-test: the recording failed after 0 test point(s), at t = 8.0 s"), last
-    assert "No space left on device; the test stopped there" in last and "bag recover" in last
-    (bag,) = [p for p in tmp_path.iterdir() if p.is_dir()]
-    monkeypatch.setattr(BagWriter, "write", real_write)
-    assert 7.5 < analyze_bag(bag)["duration_s"] < 8.1
+    captured = capsys.readouterr()
+    assert code == 1 and "Traceback" not in captured.err, captured.err
+    assert captured.err.strip().splitlines()[-1].startswith(
+        "panel-rig flutter-test: the recording failed after 0 test point(s), at t = 8.0 s")
+    assert "no test point identified (see stop)" in captured.out
+    assert "stop: interrupted by a failed recording after 0 test point(s)" in captured.out
+    assert not (tmp_path / "vg.png").exists()  # a figure of nothing is not drawn
 
 
 def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path, monkeypatch):

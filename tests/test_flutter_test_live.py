@@ -6,6 +6,7 @@ were tried first: the damping estimates (+-0.004) did not fall monotonically and
 model decided whether a prediction existed."""
 
 import json
+import subprocess
 import sys
 
 import pytest
@@ -290,3 +291,44 @@ def test_a_node_whose_recording_failed_stops_the_live_test():
     why = recording_failure({"recording": "failed", "last_recording_error": "cannot write b.mcap: No space left"})
     assert why.startswith("the rig node's recording failed (cannot write b.mcap: No space left); the test stopped")
     assert "`panel-rig bag recover` on the run's rig_* bag" in why
+
+
+def test_a_live_test_whose_node_failed_after_points_reports_them(tmp_path, capsys, monkeypatch):
+    """The node's recording failed (or the node was lost) after two test points: the command said why in one line
+    and the two points were in its progress lines only. Now they are reported as an interrupted test's (table or
+    JSON, figure), with the line why, exit 1. The client's side is stood in for (the failure itself: the test
+    above, and the full-disk run measured by hand)."""
+    pytest.importorskip("rclpy")
+    from panel_rig.analysis.flutter_test import FlutterTestSettings, TestPoint, decide
+    from panel_rig.analysis.identification import ModalEstimate
+    from panel_rig.cli import main
+    from panel_rig.processes import spawn
+    from panel_rig.ros import flutter_live
+    from panel_rig.ros.flutter_client import RigGone
+
+    def fake_node(cmd, **kwargs):  # a child that lives until it is stopped, as the node does
+        return spawn([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE,
+                     **{k: v for k, v in kwargs.items() if k != "stdin"})
+
+    def two_points_then_gone(node, domain_id, settings, startup_s, drive, on_point, stop_request, on_flutter):
+        for u in (5.0, 6.0):
+            drive.res.points.append(TestPoint(u, None, ModalEstimate(22.0, 0.01 - 0.001 * u, 0.01, 1e-4, 9, "ssi-cov"),
+                                              "ssi-cov"))
+            drive.res.decisions.append(decide(drive.res.points, FlutterTestSettings(5.0, 1.0)))
+            on_point(drive.res.points[-1], drive.res.decisions[-1])
+        drive.startup_s, drive.test_s = 1.0, 2.0
+        raise RigGone("the rig node's recording failed (cannot write b.mcap: No space left); the test stopped")
+
+    monkeypatch.setattr(flutter_live, "spawn", fake_node)
+    monkeypatch.setattr(flutter_live, "_drive", two_points_then_gone)
+    code = main(["flutter-test", "--dwell", "20", "--json", "--bag-dir", str(tmp_path), "--plot",
+                 str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    lines = [ln for ln in captured.err.strip().splitlines() if not ln.startswith("point ")]
+    assert code == 1 and len(lines) == 1, captured.err
+    assert lines[0].startswith("panel-rig flutter-test: the rig node's recording failed (cannot write b.mcap")
+    assert "node log:" in lines[0]
+    assert [p["airspeed_mps"] for p in out["test_points"]] == [5.0, 6.0] and out["interrupted"]
+    assert out["stop_reason"] == "interrupted by the rig node's failure after 2 test point(s)"
+    assert out["live"] and (tmp_path / "vg.png").is_file()

@@ -269,7 +269,8 @@ def bands_from_model(model, flutter_mode: int) -> Callable[[float], list[tuple[f
 @dataclass
 class FlutterTestResult:
     """The whole test: the points, the last decision, the highest airspeed commanded, whether it fluttered, and
-    the signal that stopped it (``interrupted``, e.g. ``"SIGINT"``; None: the procedure ended on its own)."""
+    what stopped it (``interrupted``: a signal, ``"SIGINT"``, or a failure, ``"a failed recording"``; None: the
+    procedure ended on its own)."""
 
     points: list[TestPoint] = field(default_factory=list)
     decisions: list[Decision] = field(default_factory=list)
@@ -334,13 +335,14 @@ def flutter_report(airspeed_mps: float, points: Sequence[TestPoint], settings: F
                      last.prediction if last else None))
 
 
-def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, signal_name: str
+def interrupted_result(res: FlutterTestResult, settings: FlutterTestSettings, cause: str
                        ) -> FlutterTestResult:
-    """``res`` of a test stopped by ``signal_name`` part-way: the points identified so far with the decision (and
-    so the prediction, if they give one) after the last of them, taken here when the stop came before it was."""
+    """``res`` of a test stopped by ``cause`` part-way (a signal's name, "SIGINT", or a failure: "a failed
+    recording"): the points identified so far with the decision (and so the prediction, if they give one) after
+    the last of them, taken here when the stop came before it was."""
     if len(res.decisions) < len(res.points):
         res.decisions.append(decide(res.points, settings))
-    res.interrupted = signal_name
+    res.interrupted = cause
     return res
 
 

@@ -19,6 +19,7 @@ import yaml
 from panel_rig.domains import private_domain_id
 from panel_rig.processes import (
     RIG_STARTUP_TIMEOUT_S,
+    Aborted,
     Interrupted,
     StopRequest,
     interruption,
@@ -77,6 +78,10 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
             "rerun": f"save:{rerun}" if rerun else "none"}
 
 
+#: what stopped a live test whose node failed (its recording, or the node itself), in its stop reason
+LOST_NODE = "the rig node's failure"
+
+
 def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
              bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
              dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
@@ -128,7 +133,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         if progress is not None:
             progress(flutter_line(len(drive.res.points) + 1, airspeed_mps))
 
-    stopped = None
+    stopped = gone = None
     # a signal only sets a flag, which the client's waits turn into KeyboardInterrupt / SystemExit between rclpy
     # calls (raised inside rclpy's conversion of a taken sample it became a RuntimeError): the wind off, the node
     # stopped, the points so far reported. The flag stays the only effect until the report is made: a second Ctrl-C
@@ -138,7 +143,9 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         try:
             _drive(node, did, settings, startup_s, drive, on_point, stop_request, on_flutter)
         except RigGone as exc:
-            raise RigGone(f"{exc} (node log: {log_path})") from None
+            gone = RigGone(f"{exc} (node log: {log_path})")
+            if not drive.res.points:  # nothing measured: the line alone
+                raise gone from None
         except (KeyboardInterrupt, SystemExit) as exc:
             stopped = interruption(exc)
             if stopped is None:
@@ -149,6 +156,8 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
             take_late_result(res, drive.results)
             interrupted_result(res, settings, stopped.name)
+        elif gone is not None:  # a failed recording or a lost node, after test points: they are reported
+            interrupted_result(res, settings, LOST_NODE)
         bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
         res.bag = str(bags[-1]) if bags and bag_dir is not None else None
         out = res.as_dict()
@@ -163,12 +172,14 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
                    node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
                    monitor_times_s=[float(r["sim_time_s"]) for r in results],
                    identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
-        if plot is not None and (stopped is None or res.points):
+        if plot is not None and (res.interrupted is None or res.points):
             from panel_rig.analysis.flutter_test import figure_title
             from panel_rig.analysis.plots import plot_flutter_test
 
             title = figure_title(res, cfg, variant, settings.dwell_s, "live node")
             out["plot"] = str(plot_flutter_test(res, model, mode, uf, plot, title))
+        if gone is not None:
+            raise Aborted(out, str(gone))
         if stopped is not None:
             where = f"recording and node log in {run_dir}"
             raise Interrupted(stopped, out, stopped_message(stopped, len(res.points), where, res.bag))
