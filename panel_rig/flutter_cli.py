@@ -333,15 +333,19 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 #: bytes the in-process test's bag takes per tip sample (the measured and true tip, the airspeed; 7.66 MB for 50 s
 #: at 512 samples/s, 2026-12-05)
 BAG_BYTES_PER_SAMPLE = 300
+#: the same for the live node's bag, which records every topic of the node (the modal states and the panel shape
+#: too; 4.18 MB for 7044 samples, 2026-12-05)
+LIVE_BAG_BYTES_PER_SAMPLE = 600
 
 
-def disk_warning(bag_dir: Path, settings: Any, sample_dt_s: float) -> str | None:
+def disk_warning(bag_dir: Path, settings: Any, sample_dt_s: float,
+                 bytes_per_sample: float = BAG_BYTES_PER_SAMPLE) -> str | None:
     """A warning when the test's longest course (every point's settle and dwell) could record more than the disk
     under ``bag_dir`` has free; None when it fits."""
     import shutil
 
     longest_s = settings.max_points * (settings.settle_s + settings.dwell_s)
-    need = BAG_BYTES_PER_SAMPLE * longest_s / sample_dt_s
+    need = bytes_per_sample * longest_s / sample_dt_s
     free = shutil.disk_usage(bag_dir).free
     if need <= free:
         return None

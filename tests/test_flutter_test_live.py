@@ -319,14 +319,21 @@ def test_a_live_test_whose_node_failed_after_points_reports_them(tmp_path, capsy
         drive.startup_s, drive.test_s = 1.0, 2.0
         raise RigGone("the rig node's recording failed (cannot write b.mcap: No space left); the test stopped")
 
+    import shutil
+    from collections import namedtuple
+
     monkeypatch.setattr(flutter_live, "spawn", fake_node)
     monkeypatch.setattr(flutter_live, "_drive", two_points_then_gone)
+    # and a disk too small for the test's longest course: warned of before the node starts (as in-process)
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: namedtuple("usage", "total used free")(1e13, 0, 3e6))
     code = main(["flutter-test", "--dwell", "20", "--json", "--bag-dir", str(tmp_path), "--plot",
                  str(tmp_path / "vg.png")])
     captured = capsys.readouterr()
     out = json.loads(captured.out)
     lines = [ln for ln in captured.err.strip().splitlines() if not ln.startswith("point ")]
-    assert code == 1 and len(lines) == 1, captured.err
+    assert code == 1 and len(lines) == 2, captured.err
+    assert lines[0].startswith("warning: 12 test points of 25 s could record about 92 MB; ") and "3 MB free" in lines[0]
+    lines = lines[1:]
     assert lines[0].startswith("panel-rig flutter-test: the rig node's recording failed (cannot write b.mcap")
     assert "node log:" in lines[0]
     assert [p["airspeed_mps"] for p in out["test_points"]] == [5.0, 6.0] and out["interrupted"]

@@ -108,6 +108,12 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     model = st.model
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
                           run_dir if bag_dir is not None else None, rerun)
+    if bag_dir is not None:
+        from panel_rig.flutter_cli import LIVE_BAG_BYTES_PER_SAMPLE, disk_warning
+
+        short = disk_warning(run_dir, settings, 1.0 / prm["publish_rate_hz"], LIVE_BAG_BYTES_PER_SAMPLE)
+        if short is not None and progress is not None:
+            progress(short)
     params_file = run_dir / "node_params.yaml"
     params_file.write_text(yaml.safe_dump({"panel_rig": {"ros__parameters": prm}}))
     env = dict(os.environ, ROS_DOMAIN_ID=str(did), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
