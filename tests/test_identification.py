@@ -168,6 +168,18 @@ def test_ssi_stabilisation_rejects_a_band_without_a_mode():
     assert est == [None]
 
 
+def test_a_record_with_a_nan_is_refused_by_name():
+    """A NaN in a 20 s record raised LinAlgError ("SVD did not converge") from deep in identify_ssi (an all-NaN
+    record did in identify_free_decay): both now refuse it, naming the first sample that is not finite."""
+    y = modal_response(MODES, 20.0, np.random.default_rng(3))
+    y[1234] = np.nan
+    for identify in (identify_ssi, identify_free_decay):
+        with pytest.raises(ValueError, match="1 non-finite sample.*the first at index 1234"):
+            identify(y, DT, BANDS[1:2])
+    with pytest.raises(ValueError, match="50 non-finite sample.*index 0"):
+        identify_free_decay(np.full(50, np.nan), DT, BANDS[1:2])
+
+
 def test_incremental_covariances_equal_the_batch_call():
     """A monitor adding segments one by one gets the batch result: same covariances, same estimate."""
     y = modal_response(MODES, 200.0, np.random.default_rng(7))

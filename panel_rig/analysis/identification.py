@@ -242,7 +242,7 @@ def identify_ssi(y: np.ndarray, dt_s: float, bands_hz: Sequence[tuple[float, flo
     keep a lightly damped mode well resolved by 40-odd block rows. A heavily damped mode (zeta ~ 0.4) needs a
     higher rate than 8 x its band (its covariance dies within 1/(zeta omega): pass ``max_rate_hz`` ~ 50-60 x its
     frequency) and even then its estimate scatters by ~5-10 % from a 600 s record (docs/validation.md)."""
-    y = np.asarray(y, float)
+    y = _finite_record(y)
     out: list[ModalEstimate | None] = []
     for band in bands_hz:
         yb, dtb = decimate(y, dt_s, max_rate_hz if max_rate_hz is not None else 8.0 * band[1])
@@ -252,6 +252,16 @@ def identify_ssi(y: np.ndarray, dt_s: float, bands_hz: Sequence[tuple[float, flo
             acc.add(yb[k * n : (k + 1) * n])
         out += identify_ssi_covariances(acc.covs, dtb, [band], settings)
     return out
+
+
+def _finite_record(y: np.ndarray) -> np.ndarray:
+    """``y`` as floats; a ValueError naming the first non-finite sample (one NaN gave LinAlgError from deep in the
+    SVD: "SVD did not converge")."""
+    y = np.asarray(y, float)
+    bad = np.flatnonzero(~np.isfinite(y.reshape(y.shape[0], -1)).all(axis=1)) if y.size else np.array([], int)
+    if bad.size:
+        raise ValueError(f"record has {bad.size} non-finite sample(s) (NaN or inf), the first at index {bad[0]}")
+    return y
 
 
 # ---- free decay ---------------------------------------------------------------------------------------
@@ -319,7 +329,7 @@ def identify_free_decay(y: np.ndarray, dt_s: float, bands_hz: Sequence[tuple[flo
     ``max_rate_hz`` (default 16 x the highest band edge): keep every q-th sample, the largest q whose rate is still
     >= it (physical modes above the new Nyquist frequency must be absent or filtered by the sensor).
     """
-    y = np.asarray(y, float)
+    y = _finite_record(y)
     rate = max_rate_hz if max_rate_hz is not None else 16.0 * max(b[1] for b in bands_hz)
     q = max(1, int(np.floor(1.0 / (dt_s * rate))))
     # plain subsampling, no anti-alias filter: a filter's start-up transient would distort the first (and, for a
