@@ -34,6 +34,7 @@ from panel_rig.processes import (
     signals_set,
     sigterm_exits,
 )
+from panel_rig.rig.reading import SinkStop
 
 NAMESPACE = "/rig"
 
@@ -42,10 +43,10 @@ NAMESPACE = "/rig"
 RECORDING_FAILED = "a failed recording"
 
 
-class RecordingStopped(BaseException):
+class RecordingStopped(SinkStop):
     """The bag writer failed (a full disk): the in-process test stops there, the bag written so far kept. A
-    BaseException, so the rig's ``except Exception`` around its sinks (a viewer must not stop the rig) lets it
-    through: a test whose recording failed went on for its whole course, printing the sink's traceback."""
+    :class:`~panel_rig.rig.reading.SinkStop`, which the rig lets through (its other sink errors are logged and
+    the rig goes on: a test whose recording failed went on for its whole course, printing the sink's traceback)."""
 
 
 class BagSink:

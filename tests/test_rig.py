@@ -281,6 +281,42 @@ def test_live_limits_and_sink_failures_are_not_fatal():
     assert sink.closed and not rig.sinks
 
 
+def test_a_sink_may_stop_the_run_by_raising_sink_stop():
+    """The sink contract: SinkStop from a sink ends the caller's run (a flutter test whose recording failed), from a
+    reading, a block or a command; the sinks before it got the data, the rig's state is whole (the command applied,
+    the time advanced). Before, the flutter test's recorder was a BaseException to get past the rig."""
+    from panel_rig.rig.reading import SinkStop
+
+    rig, _, sink = make_rig()
+
+    class Stopping:
+        def __init__(self):
+            self.calls = 0
+
+        def on_reading(self, reading):
+            self.calls += 1
+            raise SinkStop("recording failed")
+
+        def on_command(self, *a):
+            raise SinkStop("recording failed")
+
+        def close(self):
+            pass
+
+    stopping = Stopping()
+    rig.sinks.append(stopping)
+    with pytest.raises(SinkStop):
+        rig.emit()
+    with pytest.raises(SinkStop):
+        rig.command_airspeed(1.0)
+    assert rig.actuator.setpoint_mps == 1.0  # applied before the sinks heard of it
+    block = rig.advance_samples([4, 4])
+    with pytest.raises(SinkStop):
+        rig.emit_block(block)  # a sink without on_block gets each reading: the first one stops it
+    assert stopping.calls == 2 and rig.sink_errors == 0
+    assert len(sink.readings) == 3  # the sink before it got the reading and the whole block
+
+
 def test_real_stepper_safety_abort_and_divergence_reset():
     """With panel_rig.model.stepper (if present): above flutter the tip limit aborts; a divergence
     (the model's own bound, set low here) aborts and leaves the model at rest, never NaN."""

@@ -60,8 +60,15 @@ class ReadingBlock:
                             readings[-1].state if readings else "running")
 
 
+class SinkStop(Exception):
+    """Raised by a sink whose failure must end the run that feeds it (a flutter test's recording that can no
+    longer be kept: its points would not replay). The rig lets it through; any other error of a sink is logged
+    and counted, and the rig goes on (a viewer must not stop the tunnel)."""
+
+
 class Sink(Protocol):
-    """Anything the rig feeds: a ROS publisher set, a bag recorder, a Rerun logger."""
+    """Anything the rig feeds: a ROS publisher set, a bag recorder, a Rerun logger. A sink's errors never stop the
+    rig, except :class:`SinkStop`."""
 
     def on_reading(self, reading: Reading) -> None: ...
 

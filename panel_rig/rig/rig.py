@@ -13,7 +13,7 @@ import numpy as np
 
 from panel_rig.rig.actuator import AirspeedActuator
 from panel_rig.rig.control import ControlActuator, ControlSettings, check_control_force, check_stamp
-from panel_rig.rig.reading import Reading, ReadingBlock, Sink
+from panel_rig.rig.reading import Reading, ReadingBlock, Sink, SinkStop
 from panel_rig.rig.safety import (
     SafetyLimits,
     check_airspeed,
@@ -467,11 +467,14 @@ class Rig:
         return np.asarray(self.stepper.shape_w_over_L(x, q=q), dtype=float)  # type: ignore[call-arg]
 
     def emit(self) -> Reading:
-        """Take a reading and hand it to every sink; a failing sink is logged and counted, never fatal."""
+        """Take a reading and hand it to every sink; a failing sink is logged and counted, never fatal (but a
+        :class:`~panel_rig.rig.reading.SinkStop`, which ends the caller's run)."""
         reading = self.reading()
         for sink in list(self.sinks):
             try:
                 sink.on_reading(reading)
+            except SinkStop:
+                raise
             except Exception:  # noqa: BLE001 (a sink must never stop the rig)
                 self._sink_failed(sink)
         return reading
@@ -490,6 +493,8 @@ class Rig:
                     singles = singles if singles is not None else block.readings()
                     for r in singles:
                         sink.on_reading(r)
+            except SinkStop:
+                raise
             except Exception:  # noqa: BLE001 (a sink must never stop the rig)
                 self._sink_failed(sink)
 
@@ -501,6 +506,8 @@ class Rig:
         for sink in list(self.sinks):
             try:
                 sink.on_command(name, v, accepted, self._time_s)
+            except SinkStop:
+                raise
             except Exception:  # noqa: BLE001 (a sink must never stop the rig)
                 self._sink_failed(sink)
 
