@@ -136,7 +136,7 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
-                           "prediction_method": None}
+                           "prediction_method": None, "margin": None, "required_margin": margin}
     d = None
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))

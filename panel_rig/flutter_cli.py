@@ -314,7 +314,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
             interrupted_result(res, settings, RECORDING_FAILED if stopped is None else stopped.name)
         res.bag = str(writer.bag_dir) if writer is not None else None
         out = res.as_dict()
-        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=False,
+        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, required_margin=margin, live=False,
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=rig.time_s,
                    wall_s=time.monotonic() - t0, monitor_times_s=[h[0] for h in history])
         if plot is not None and (res.interrupted is None or res.points):

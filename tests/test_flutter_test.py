@@ -603,6 +603,9 @@ def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_p
     assert "No space left on device; the test stopped there" in last and "bag recover" in last
     assert len(out["test_points"]) == 2 and out["interrupted"] and out["fluttered"] is False
     assert out["stop_reason"] == "interrupted by a failed recording after 2 test point(s)"
+    # `margin` is the predicted margin at the last point, as the monitor's; `required_margin` is --margin
+    assert out["required_margin"] == 0.1 and out["predicted_flutter_speed_mps"] is not None
+    assert out["margin"] == pytest.approx(1 - out["test_points"][-1]["airspeed_mps"] / out["predicted_flutter_speed_mps"])
     assert (tmp_path / "vg.png").is_file() and out["plot"] == str(tmp_path / "vg.png")
     (bag,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert out["bag"] == str(bag)

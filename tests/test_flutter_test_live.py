@@ -100,6 +100,8 @@ def test_analyze_replays_the_live_identification(live_run):
         assert again["damping_ratio"] == pytest.approx(live["damping_ratio"], rel=1e-6)
         assert again["frequency_hz"] == pytest.approx(live["frequency_hz"], rel=1e-9)
     assert ft["predicted_flutter_speed_mps"] == pytest.approx(out["predicted_flutter_speed_mps"], rel=1e-6)
+    # one meaning per key: the margin reached at the last point, and the one the test required
+    assert ft["margin"] == pytest.approx(out["margin"], rel=1e-6) and ft["required_margin"] == out["required_margin"]
 
 
 def test_live_flutter_test_reports_a_dead_node_in_one_line(tmp_path, capsys, monkeypatch):
@@ -339,3 +341,4 @@ def test_a_live_test_whose_node_failed_after_points_reports_them(tmp_path, capsy
     assert [p["airspeed_mps"] for p in out["test_points"]] == [5.0, 6.0] and out["interrupted"]
     assert out["stop_reason"] == "interrupted by the rig node's failure after 2 test point(s)"
     assert out["live"] and (tmp_path / "vg.png").is_file()
+    assert out["margin"] is None and out["required_margin"] == 0.1  # no prediction from these two points

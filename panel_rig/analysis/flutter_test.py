@@ -291,6 +291,8 @@ class FlutterTestResult:
                "predicted_flutter_speed_mps": None if pd is None else pd["predicted_flutter_speed_mps"],
                "predicted_flutter_speed_ci_mps": None if pd is None else pd["predicted_flutter_speed_ci_mps"],
                "prediction_method": None if pred is None else pred.method,
+               # 1 - U/U_f at the last point, as the monitor's `margin` (the required one is the caller's)
+               "margin": None if pred is None or not self.points else pred.margin(self.points[-1].airspeed_mps),
                "max_airspeed_mps": self.max_airspeed_mps,
                "fluttered": bool(self.fluttered),
                "interrupted": self.interrupted is not None,

@@ -170,7 +170,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         results = drive.results
         last = results[-1] if results else {}
         sim = float(last.get("sim_time_s", float("nan")))
-        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, margin=margin, live=True,
+        out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, required_margin=margin, live=True,
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
                    wall_s=time.monotonic() - t0, node_startup_wall_s=drive.startup_s,
                    test_wall_s=drive.test_s, node_rtf=sim / drive.test_s if drive.test_s > 0 else None,
