@@ -229,13 +229,14 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
     design = design_law(model, bw, rom_modes=rom_modes)
     loop = LoopModel(bw, delay_s)
     u_max = 2.5 * design.open_loop_flutter_mps
-    cl = closed_loop_flutter(model, design.law, loop, rom_modes, u_max=u_max, n_scan=40)
+    cl = closed_loop_flutter(model, design.law, loop, rom_modes, u_max=u_max, n_scan=40, all_ranges=True)
     payload: dict[str, Any] = {
         "flutter_speed_mps": design.open_loop_flutter_mps,
         "flutter_frequency_hz": design.notes["open_loop_flutter_frequency_hz"],
         "closed_loop_flutter_speed_mps": cl.speed_mps,
         "closed_loop_flutter_frequency_hz": cl.frequency_hz,
         "closed_loop_unstable_at_low_speed": cl.unstable_at_low_speed,
+        "closed_loop_unstable_ranges_mps": [list(r) for r in cl.unstable_ranges_mps],
         "ratio": None if cl.speed_mps is None else cl.speed_mps / design.open_loop_flutter_mps,
         "loop_delay_s": delay_s, "loop_delay_source": source, "actuator_bandwidth_hz": bw,
         "law": design.law.as_dict(), "design_delay_s": design.loop.delay_s,
@@ -246,7 +247,11 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
     if args.plot:
         from panel_rig.analysis.plots import plot_control_damping
 
-        speeds = np.linspace(1.0, min(u_max, 1.6 * (cl.speed_mps or u_max)), 45)
+        # from the scan's lowest speed to past the instability that lasts (an early closed band, 0.55-2.4 m/s at
+        # 50 ms, gave an axis of 0.5-1 m/s that ended before it did)
+        last = cl.unstable_ranges_mps[-1] if cl.unstable_ranges_mps else None
+        top = u_max if last is None or last[1] is not None else min(u_max, max(1.6 * last[0], 1.0))
+        speeds = np.linspace(0.5, top, 60)
         payload["plot"] = str(plot_control_damping(
             speeds, damping_curves(model, speeds, None, loop, rom_modes),
             damping_curves(model, speeds, design.law, loop, rom_modes), args.plot, design.open_loop_flutter_mps,
@@ -264,13 +269,26 @@ def _flutter_control(args: argparse.Namespace, cfg: PanelConfig, model: Any, rom
                 f"closed-loop flutter speed  {speed}"
                 + ("" if cl.speed_mps is None else f" (x{cl.speed_mps / design.open_loop_flutter_mps:.3f}, "
                                                    f"{cl.frequency_hz:.2f} Hz)") + "\n"
-                f"law                        F = -{design.law.gain_nspm2:g} s/(1 + s/(2 pi "
+                + (f"closed loop unstable       {_ranges_text(cl.unstable_ranges_mps, cl.unstable_at_low_speed)}\n"
+                   if len(cl.unstable_ranges_mps) > 1 or cl.unstable_at_low_speed else "")
+                + f"law                        F = -{design.law.gain_nspm2:g} s/(1 + s/(2 pi "
                 f"{design.law.derivative_hz:g})) w   [N/m per m/s]\n"
                 f"loop                       actuator {bw:g} Hz, delay {delay_s * 1e3:.3f} ms ({source})"
                 + (f"\nplot                       {payload['plot']}" if payload.get("plot") else ""))
 
     _emit(args, payload, table)
     return 0
+
+
+def _ranges_text(ranges: Sequence[tuple[float, float | None]], from_lowest: bool) -> str:
+    """Unstable airspeed intervals as the table shows them: "0.552-2.437 m/s, from 13.125 m/s"; ``from_lowest``:
+    the first is unstable already at the scan's lowest speed ("up to 3.859 m/s", "at every speed scanned")."""
+    def text(k: int, lo: float, hi: float | None) -> str:
+        if k == 0 and from_lowest:
+            return f"up to {hi:.3f} m/s" if hi is not None else f"at every speed scanned ({lo:g} m/s and up)"
+        return f"{lo:.3f}-{hi:.3f} m/s" if hi is not None else f"from {lo:.3f} m/s"
+
+    return ", ".join(text(k, lo, hi) for k, (lo, hi) in enumerate(ranges))
 
 
 class Progress:

@@ -4,6 +4,7 @@ command ages, the reference law's design, and the closed-loop flutter prediction
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from panel_rig.analysis.control import (
     closed_loop_flutter,
     design_law,
     effective_delay,
+    growth_rate,
     noise_force_rms,
     pade_delay,
 )
@@ -221,6 +223,14 @@ def test_long_loop_delay_prediction_is_converged_and_unstable_at_50_ms(model, de
     u_max = 2.5 * design.open_loop_flutter_mps
     at_50 = closed_loop_flutter(model, design.law, LoopModel(100.0, 0.05), u_max=u_max)
     assert at_50.unstable_at_low_speed or at_50.speed_mps < 1.0
+    # and it is a band: stable again above ~2.4 m/s up to a flutter speed above the open loop's (the CLI reported
+    # the band's 0.552 m/s as "the closed-loop flutter speed" alone, not unstable at low speed)
+    ranges = closed_loop_flutter(model, design.law, LoopModel(100.0, 0.05), u_max=u_max, n_scan=40,
+                                 all_ranges=True).unstable_ranges_mps
+    assert len(ranges) == 2 and ranges[0][0] < 1.0 and 1.0 < ranges[0][1] < 5.0, ranges
+    assert ranges[1][0] > design.open_loop_flutter_mps and ranges[1][1] is None, ranges
+    for u, unstable in ((0.5 * (ranges[0][0] + ranges[0][1]), True), (0.5 * (ranges[0][1] + ranges[1][0]), False)):
+        assert (growth_rate(model, u, design.law, LoopModel(100.0, 0.05)) > 0) == unstable, u
     for tau in (0.03, 0.04, 0.075):
         a = closed_loop_flutter(model, design.law, LoopModel(100.0, tau), u_max=u_max)
         b = closed_loop_flutter(model, design.law, LoopModel(100.0, tau, delay_accurate_hz=400.0), u_max=u_max)
@@ -292,6 +302,12 @@ def test_cli_flutter_control_json_and_bad_input(capsys, tmp_path) -> None:
     out = json.loads(capsys.readouterr().out)
     assert out["closed_loop_flutter_speed_mps"] > 1.25 * out["flutter_speed_mps"]
     assert out["loop_delay_s"] == pytest.approx(0.003) and (tmp_path / "d.png").stat().st_size > 10_000
+    assert out["closed_loop_unstable_ranges_mps"] == [[out["closed_loop_flutter_speed_mps"], None]]
+    # a band of low speeds unstable (50 ms): the table names it beside the first crossing
+    assert main(["flutter", "--control", "--delay-ms", "50"]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("closed loop unstable")]
+    assert len(line) == 1 and re.fullmatch(r"closed loop unstable +0\.\d{3}-[1-4]\.\d{3} m/s, from 1\d\.\d{3} m/s",
+                                            line[0]), line
     assert main(["flutter", "--control", "--plot", str(tmp_path / "e.png")]) == 0
     assert capsys.readouterr().out.splitlines()[-1].split() == ["plot", str(tmp_path / "e.png")]  # named, as --json
     assert main(["flutter", "--control", "--delay-ms", "nan"]) == 2

@@ -208,29 +208,48 @@ def growth_rate(model: AeroelasticModel, airspeed_mps: float, law: ControlLaw, l
 
 @dataclass(frozen=True)
 class ClosedLoopFlutter:
-    speed_mps: float | None  # None: stable up to u_max
+    speed_mps: float | None  # None: stable up to u_max (or unstable already at u_min)
     frequency_hz: float | None
     unstable_at_low_speed: bool = False
+    #: with ``all_ranges``: every airspeed interval (m/s) of the scan with a closed-loop Re s > 0, (start, end); end
+    #: None when it lasts to u_max, start u_min when it is unstable already there. A long loop delay can make the
+    #: loop unstable over a band of low speeds and stable again above it, below its flutter speed (50 ms: 0.55 to
+    #: ~3 m/s)
+    unstable_ranges_mps: tuple[tuple[float, float | None], ...] = ()
 
 
 def closed_loop_flutter(model: AeroelasticModel, law: ControlLaw, loop: LoopModel, rom_modes: int | None = None,
-                        u_min: float = 0.5, u_max: float = 30.0, n_scan: int = 60) -> ClosedLoopFlutter:
-    """Lowest airspeed where a closed-loop eigenvalue crosses into Re s > 0 (scan, then Brent)."""
+                        u_min: float = 0.5, u_max: float = 30.0, n_scan: int = 60,
+                        all_ranges: bool = False) -> ClosedLoopFlutter:
+    """Lowest airspeed where a closed-loop eigenvalue crosses into Re s > 0 (scan, then Brent). ``all_ranges``: the
+    scan goes on to u_max and every unstable interval it brackets is refined (``unstable_ranges_mps``)."""
     def g(u: float) -> float:
         return growth_rate(model, u, law, loop, rom_modes)
 
     speeds = np.linspace(u_min, u_max, n_scan)
-    if g(speeds[0]) > 0:
+    rates = [g(speeds[0])]
+    if rates[0] > 0 and not all_ranges:
         return ClosedLoopFlutter(None, None, unstable_at_low_speed=True)
-    prev = speeds[0]
-    for u in speeds[1:]:
-        if g(u) > 0:
-            uf = brentq(g, prev, u, xtol=1e-5)
-            s = closed_loop_eigenvalues(model, uf + 1e-4, law, loop, rom_modes)
-            i = int(np.argmax(s.real))
-            return ClosedLoopFlutter(float(uf), float(abs(s[i].imag) / (2 * np.pi)))
-        prev = u
-    return ClosedLoopFlutter(None, None)
+    crossings: list[float] = []  # airspeeds where max Re s changes sign, in order
+    for prev, u in zip(speeds[:-1], speeds[1:]):
+        rates.append(g(u))
+        if (rates[-2] > 0) != (rates[-1] > 0):
+            crossings.append(float(brentq(g, prev, u, xtol=1e-5)))
+            if not all_ranges:
+                break
+    low = rates[0] > 0
+    bounds = ([float(u_min)] if low else []) + crossings
+    if all_ranges and len(bounds) % 2:
+        bounds.append(None)  # unstable to the end of the scan
+    ranges = tuple(zip(bounds[0::2], bounds[1::2])) if all_ranges else ()
+    if low:
+        return ClosedLoopFlutter(None, None, unstable_at_low_speed=True, unstable_ranges_mps=ranges)
+    if not crossings:
+        return ClosedLoopFlutter(None, None)
+    uf = crossings[0]
+    s = closed_loop_eigenvalues(model, uf + 1e-4, law, loop, rom_modes)
+    i = int(np.argmax(s.real))
+    return ClosedLoopFlutter(float(uf), float(abs(s[i].imag) / (2 * np.pi)), unstable_ranges_mps=ranges)
 
 
 @dataclass(frozen=True)
