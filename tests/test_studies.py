@@ -70,6 +70,8 @@ def base():
     ({"aero": "none"}, "aero"),
     ({"samples": 3}, "samples"),  # an uncertainty key in a flutter map
     ({"vary": {"panel.thickness_m": [0.0003, 0.0003]}}, "twice"),
+    # the varied value silently won over the set one
+    ({"set": {"aero.rom_modes": 12, "panel.thickness_m": 0.0004}}, "vary: panel.thickness_m is in both set and vary"),
     # refused from the counts, before 10^10 cases are built (that took minutes and gigabytes)
     ({"vary": {"panel.thickness_m": {"start": 1e-4, "stop": 1e-3, "num": 100_000},
                "panel.length_m": {"start": 0.2, "stop": 0.3, "num": 100_000}}}, "10000000000 cases exceed"),
@@ -177,6 +179,15 @@ def test_a_port_that_refuses_connections_is_told_from_a_scheduler_that_listens()
         port = s.getsockname()[1]
     assert refuses_connections(f"tcp://127.0.0.1:{port}", 0.3)
     assert not refuses_connections(f"inproc://127.0.0.1:{port}", 0.3)  # not TCP: left to Dask
+
+
+def test_an_address_that_cannot_be_one_is_refused_at_once():
+    """A port above 65535 and a host name that does not resolve both waited out Dask's 60 s connect timeout."""
+    from panel_rig.studies.runner import scheduler_problem
+
+    assert "Port out of range" in scheduler_problem("tcp://127.0.0.1:99999")
+    # (.invalid never resolves, RFC 6761)
+    assert "the host name nonexistent.invalid does not resolve" in scheduler_problem("tcp://nonexistent.invalid:8786")
 
 
 def test_a_lost_cluster_keeps_what_arrived_and_says_the_rerun_resumes(base, tmp_path):

@@ -66,16 +66,21 @@ class WarmUp(WorkerPlugin):
 REFUSED_GRACE_S = 10.0
 
 
+def _scheme_host_port(address: str) -> tuple[str, str | None, int | None]:
+    """(scheme, host, port) of tcp://HOST:PORT or HOST:PORT; ValueError for a port that is not one (99999)."""
+    parts = urllib.parse.urlsplit(address if "://" in address else f"tcp://{address}")
+    return parts.scheme, parts.hostname, parts.port
+
+
 def refuses_connections(address: str, grace_s: float) -> bool:
     """True if the TCP host:port of ``address`` (tcp://HOST:PORT or HOST:PORT) refused every connection for
     ``grace_s`` (a scheduler still starting gets that long); False as soon as one connects, and for any other
     outcome (no route, a timeout, another protocol), which Dask's own timeout then decides."""
-    parts = urllib.parse.urlsplit(address if "://" in address else f"tcp://{address}")
     try:
-        host, port = parts.hostname, parts.port
+        scheme, host, port = _scheme_host_port(address)
     except ValueError:  # a port that is not a number: Dask's message says so
         return False
-    if parts.scheme != "tcp" or host is None or port is None:
+    if scheme != "tcp" or host is None or port is None:
         return False
     deadline = time.monotonic() + grace_s
     while True:
@@ -102,6 +107,16 @@ def scheduler_problem(scheduler: str, timeout_s: float = 60.0) -> str | None:
             parse_host_port(location)
     except ValueError as exc:
         return f"--scheduler {scheduler}: not a Dask scheduler address ({exc}; e.g. tcp://HOST:8786)"
+    if scheme == "tcp":  # what can be known at once (both waited out Dask's whole 60 s timeout)
+        try:
+            _, host, port = _scheme_host_port(scheduler)
+        except ValueError as exc:  # a port above 65535
+            return f"--scheduler {scheduler}: not a Dask scheduler address ({exc}; e.g. tcp://HOST:8786)"
+        if host is not None and port is not None:
+            try:
+                socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+            except socket.gaierror as exc:
+                return f"cannot reach the Dask scheduler at {scheduler}: the host name {host} does not resolve ({exc})"
     grace_s = min(timeout_s, REFUSED_GRACE_S)
     if refuses_connections(scheduler, grace_s):
         return (f"cannot reach the Dask scheduler at {scheduler}: connection refused (nothing listens on that port; "

@@ -230,6 +230,9 @@ def parse_spec(raw: Mapping[str, Any], base_file: Mapping[str, Any]) -> Study:
     if not vary and kind != "bifurcation":
         raise _fail("vary", "needs at least one dotted config key")
     keys = tuple(_config_key("vary", k) for k in vary)
+    both = [k for k in keys if k in {_config_key("set", f) for f in fixed}]
+    if both:  # the varied value silently won over the set one
+        raise _fail("vary", f"{both[0]} is in both set and vary: give it in one of them")
     aero_choices = RIG_AERO_MODELS if kind == "bifurcation" else FLUTTER_AERO
     options: dict[str, Any] = {"aero": _choice("aero", raw.get("aero", DEFAULT_AERO), aero_choices)}
     if kind != "bifurcation":
