@@ -616,10 +616,12 @@ def test_batch_size_does_not_make_another_study(base):
     assert parse_spec(other, base).fingerprint != parse_spec(FLUTTER_SPEC, base).fingerprint
 
 
-def test_ctrl_c_at_a_terminal_stops_quietly_and_says_how_to_resume(tmp_path):
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_ctrl_c_at_a_terminal_stops_quietly_and_says_how_to_resume(tmp_path, how):
     """Ctrl-C at a terminal signals the whole process group, the LocalCluster's worker processes too: each printed
     a KeyboardInterrupt traceback. Now the client alone stops the study: status 130, a last line saying what is
-    stored and that the same command resumes, no traceback."""
+    stored and that the same command resumes, no traceback. SIGTERM to the command (a `kill`, a job scheduler)
+    ended it at once with status -15, no word, and leaked semaphores; now it stops the same way, status 143."""
     import time
 
     import zarr
@@ -642,15 +644,20 @@ def test_ctrl_c_at_a_terminal_stops_quietly_and_says_how_to_resume(tmp_path):
         while stored() == 0 and p.poll() is None and time.monotonic() < deadline:
             time.sleep(0.1)  # polling a condition (the first results on disk), not waiting for one to happen
         assert p.poll() is None and stored() > 0, "the study ended, or stored nothing, before it could be interrupted"
-        os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: every process of the group
+        if how == "ctrl-c":
+            os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: every process of the group
+        else:
+            p.send_signal(signal.SIGTERM)  # as `kill PID`: the command alone
         _, err = p.communicate(timeout=60)
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
             p.wait()
     lines = err.strip().splitlines()
-    assert p.returncode == 130, err[-3000:]
-    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert p.returncode == (130 if how == "ctrl-c" else 143), err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err and "leaked" not in err, err[-3000:]
+    assert lines[-1].startswith("panel-rig study: interrupted; " if how == "ctrl-c"
+                                else "panel-rig study: stopped by SIGTERM; "), lines
     # the last line says what is stored (a loaded machine may add Dask's own warnings above it, never a traceback)
     assert "cases are stored in" in lines[-1] and "the same command resumes" in lines[-1], lines
     assert not any("Port 8787" in ln for ln in lines), lines  # the study's scheduler takes any free port

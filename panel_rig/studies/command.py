@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 from typing import Any
 
 from panel_rig import jsonio
 from panel_rig.config import ConfigError
-from panel_rig.processes import INTERRUPTED_STATUS
+from panel_rig.processes import INTERRUPTED_STATUS, TERMINATED_STATUS, interruption, sigterm_exits
 
 
 def _stored(out: Path) -> int:
@@ -36,14 +37,21 @@ def run(args: Any) -> int:
     out = Path(args.out) if args.out else Path("out") / "study" / Path(args.spec).stem
     show = not args.json and sys.stderr.isatty()
     try:
-        info = run_study(study, out, workers=args.workers or (None if args.scheduler else 2),
-                         scheduler=args.scheduler, progress=show)
-    except KeyboardInterrupt:  # what arrived is stored (run_study flushes on the way out): say so, and how to go on
+        # SIGTERM (a `kill`, a job scheduler's time limit) stops it as Ctrl-C does: it ended at once with status -15,
+        # no word of what was kept, and the cluster's semaphores leaked
+        with sigterm_exits():
+            info = run_study(study, out, workers=args.workers or (None if args.scheduler else 2),
+                             scheduler=args.scheduler, progress=show)
+    except (KeyboardInterrupt, SystemExit) as exc:  # what arrived is stored (run_study flushes on the way out): say
+        stopped = interruption(exc)  # so, and how to go on
+        if stopped is None:
+            raise
         from panel_rig.studies.store import STORE_NAME
 
-        print(f"panel-rig study: interrupted; {_stored(out)} of {len(study.cases)} cases are stored in "
+        how = "interrupted" if stopped == signal.SIGINT else f"stopped by {stopped.name}"
+        print(f"panel-rig study: {how}; {_stored(out)} of {len(study.cases)} cases are stored in "
               f"{out / STORE_NAME}: the same command resumes", file=sys.stderr)
-        return INTERRUPTED_STATUS
+        return INTERRUPTED_STATUS if stopped == signal.SIGINT else TERMINATED_STATUS
     ds = info["store"].load()
     summary = summarize(study, ds)
     (out / "summary.json").write_text(jsonio.dumps(summary, indent=1) + "\n")
