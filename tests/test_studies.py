@@ -717,3 +717,11 @@ def test_sensitivity_ranks_cases_without_a_flutter_speed_at_their_end(base):
     assert abs(spearmanr(zeta[found], u[found]).statistic) < 0.4  # what the found cases alone say of damping
     assert by_key["structure.damping_ratio"]["value"] > 0.6  # unstable-at-once cases rank lowest
     assert by_key["structure.damping_ratio"]["importance"] > by_key["air.density_kgpm3"]["importance"]
+
+
+def test_the_table_shows_summary_numbers_rounded_and_percentiles_by_name():
+    """The study's table printed `{'5': 8.10090676506601, ...}` (a Python dict of 16-digit floats)."""
+    from panel_rig.studies.command import _shown
+
+    assert _shown({"5": 8.10090676506601, "50": 10.570545677287502}) == "P5 8.101, P50 10.571"
+    assert _shown(0.0012345678) == "0.001235" and _shown(18.00136063453383) == "18.001" and _shown(6) == "6"

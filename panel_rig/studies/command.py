@@ -25,6 +25,16 @@ def _stored(out: Path) -> int:
         return 0
 
 
+def _shown(value: Any) -> str:
+    """A summary value for the table: numbers to 3 decimals (4 significant digits below 1), a mapping as "key: value" pairs (the
+    percentiles printed as a Python dict of 16-digit floats); the JSON keeps every digit."""
+    if isinstance(value, dict):
+        return ", ".join(f"P{k} {_shown(v)}" if str(k).isdigit() else f"{k}: {_shown(v)}" for k, v in value.items())
+    if isinstance(value, float):
+        return f"{value:.3f}" if abs(value) >= 1 else f"{value:.4g}"
+    return str(value)
+
+
 def run(args: Any) -> int:
     from panel_rig.studies.spec import load_spec
 
@@ -62,13 +72,14 @@ def run(args: Any) -> int:
                           "plots": [str(f) for f in files]}))
         return 0
     if info["workers"]:
-        print(f"{study.kind}: {len(study.cases)} cases ({info['computed']} computed now, on {info['workers']} "
-              f"workers) in {info['wall_s']:.1f} s")
+        workers = f"{info['workers']} worker" + ("s" if info["workers"] != 1 else "")
+        print(f"{study.kind}: {len(study.cases)} cases ({info['computed']} computed now, on {workers}) in "
+              f"{info['wall_s']:.1f} s")
     else:
         print(f"{study.kind}: {len(study.cases)} cases, all already in {info['store'].path} (nothing to compute)")
     for k, v in summary.items():
         if k not in ("kind", "branches", "sensitivity"):
-            print(f"  {k:24s} {v}")
+            print(f"  {k:24s} {_shown(v)}")
     for r in summary.get("sensitivity", []):
         print(f"  sensitivity  {r['key']:28s} {r['measure']} {r['value']:+.3f}")
     for r in summary.get("branches", []):
