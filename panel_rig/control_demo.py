@@ -158,7 +158,7 @@ def diagnostics_summary(diag: dict[str, str]) -> dict[str, Any]:
 
 
 def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -> dict[str, Any]:
-    """The whole demonstration; returns the summary (also written to ``out/summary.json``)."""
+    """The whole demonstration; returns the summary (written to ``out/<run>_summary.json`` and ``out/summary.json``)."""
     from panel_rig.analysis.control import (
         QUIET_FACTOR,
         SENSOR_NOISE_M,
@@ -255,8 +255,11 @@ def run(delay_ms: float, out: Path, bag_dir: Path, log: Callable[[str], None]) -
                    bag=str(new[-1]) if new else None,
                    rerun=str(rrd) if rrd.exists() else None, node_exit=node_code, controller_exit=ctl_code,
                    node_log=str(node_log), controller_log=str(ctl_log))
-    path = out / "summary.json"
+    # the run's own summary beside its .rrd and logs, and summary.json the latest run's (it was the only one: each
+    # run overwrote the last)
+    path = out / f"{run_name}_summary.json"
     path.write_text(jsonio.dumps(summary, indent=1))
+    (out / "summary.json").write_text(jsonio.dumps(summary, indent=1))
     if stopped is not None:
         raise Interrupted(stopped, summary, f"stopped by {stopped.name}: what was measured so far is in {path} "
                                             f"(bag {summary['bag']}, node log {node_log})")

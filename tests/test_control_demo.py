@@ -74,7 +74,10 @@ def test_a_stopped_control_demo_writes_what_it_measured(tmp_path: Path, sig: int
     assert Path(summary["bag"]).parent == bags
     assert isinstance(summary["control_commands"], int) and summary["control_commands"] > 0
     assert isinstance(summary["latency_mean_total_ms"], float)
-    assert f"stopped by {signal.Signals(sig).name}" in text and str(out / "summary.json") in text
+    assert f"stopped by {signal.Signals(sig).name}" in text
+    # the message names the run's own summary (summary.json is a copy of the latest run's)
+    (own,) = out.glob("control_demo_*_summary.json")
+    assert str(own) in text and json.loads(own.read_text()) == summary
     from panel_rig.recording.series import load_series
 
     assert load_series(summary["bag"]).commands["airspeed_cmd"][-1][1] == 0.0  # the wind off, recorded
@@ -95,9 +98,11 @@ def test_a_failed_control_demo_writes_what_it_measured(tmp_path: Path, monkeypat
 
     monkeypatch.setattr(demo, "_quiet_check", tunnel_never_there)
     out = tmp_path / "out"
-    with pytest.raises(demo.DemoError, match=f"{reason}; what was measured so far is in {out / 'summary.json'}"):
+    with pytest.raises(demo.DemoError, match=f"{reason}; what was measured so far is in {out}/control_demo_.*_summary"):
         demo.run(2.0, out, tmp_path / "bags", log=lambda line: None)
     summary = json.loads((out / "summary.json").read_text())
+    (own,) = out.glob("control_demo_*_summary.json")
+    assert json.loads(own.read_text()) == summary
     assert summary["error"] == reason and summary["interrupted"] is False
     assert summary["node_exit"] == 0 and summary["controller_exit"] == 0
     assert summary["quiet"] is None and summary["onset_growth_rates_per_s"] == []

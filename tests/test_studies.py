@@ -241,6 +241,20 @@ def test_unknown_spec_key_exits_2_with_one_line(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("out_arg,needle", [("", "--out must name a directory, got an empty path"),
+                                             ("afile", "is a file, not a directory")])
+def test_an_out_that_cannot_be_the_study_s_directory_exits_2(tmp_path, capsys, out_arg, needle):
+    """`--out ""` silently used the default directory; `--out FILE` said only "File exists"."""
+    from panel_rig.cli import main
+
+    spec = write_spec(tmp_path / "s.yaml", FLUTTER_SPEC)
+    (tmp_path / "afile").write_text("x")
+    target = str(tmp_path / out_arg) if out_arg else ""
+    assert main(["study", "--spec", str(spec), "--out", target]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+
+
 def test_spec_expands_grids_samples_and_chains(base):
     s = parse_spec(FLUTTER_SPEC, base)
     assert len(s.cases) == 8 and s.keys == ("panel.thickness_m", "panel.length_m")

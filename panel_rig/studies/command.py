@@ -40,6 +40,10 @@ def run(args: Any) -> int:
 
     if args.workers is not None and not (1 <= args.workers <= 512):
         raise ConfigError(f"--workers must be in [1, 512], got {args.workers}")
+    if args.out is not None and not args.out.strip():  # it silently meant the default directory
+        raise ConfigError("--out must name a directory, got an empty path")
+    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():  # it said "File exists"
+        raise ConfigError(f"--out {args.out} is a file, not a directory")
     study = load_spec(args.spec, args.params)  # bad specs fail here, before dask is imported
 
     from panel_rig.studies.report import plot, summarize
