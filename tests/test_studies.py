@@ -623,6 +623,31 @@ def test_a_flutter_map_with_holes_and_unsorted_levels_still_shows_its_cases(base
     assert red > 20, red
 
 
+def test_the_map_s_cases_stand_out_from_its_contours():
+    """The case dots were filled with their own value: on the contour of the same colour they could not be seen.
+    Over contours they are white; without contours (too few values) their colour is still the value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from panel_rig.studies.report import _map
+
+    def dots(z):
+        fig, ax = plt.subplots()
+        _map(fig, ax, np.array([1.0, 2.0, 3.0]), np.array([3.0, 4.0]), z, "U_f, m/s")
+        fig.canvas.draw()  # a scatter's colours from its values are mapped when it is drawn
+        (cases,) = [c for c in ax.collections if c.get_label() == "case computed"]
+        colours = cases.get_facecolors()
+        plt.close(fig)
+        return colours
+
+    full = dots(np.array([[8.0, 9.0], [10.0, 11.0], [12.0, 13.0]]))
+    assert np.allclose(full, [1, 1, 1, 1])  # white
+    sparse = dots(np.array([[8.0, np.nan], [np.nan, np.nan], [np.nan, 13.0]]))
+    assert len(sparse) == 2 and not np.allclose(sparse[0], sparse[1])  # the values' colours
+
+
 def test_batch_size_does_not_make_another_study(base):
     """`batch` tunes the tasks, not the cases: the same output directory resumes (it was refused as another study)."""
     assert parse_spec({**FLUTTER_SPEC, "batch": 2}, base).fingerprint == parse_spec(FLUTTER_SPEC, base).fingerprint

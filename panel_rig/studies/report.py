@@ -122,17 +122,23 @@ def _map(fig: Any, ax: Any, x: np.ndarray, y: np.ndarray, z: np.ndarray, label: 
     from matplotlib.colors import Normalize
 
     norm = Normalize(lo, hi)
-    if ok.any(axis=1).sum() >= 2 and ok.any(axis=0).sum() >= 2 and values.size >= 4:
+    contoured = ok.any(axis=1).sum() >= 2 and ok.any(axis=0).sum() >= 2 and values.size >= 4
+    if contoured:
         cs = ax.contourf(x, y, z.T, levels=np.linspace(lo, hi, 15), cmap="viridis", norm=norm)
         ax.contour(cs, colors="k", linewidths=0.4)
     X, Y = np.meshgrid(x, y, indexing="ij")
-    sc = ax.scatter(X[ok], Y[ok], c=values, cmap="viridis", norm=norm, s=14, edgecolors="k", linewidths=0.4,
-                    clip_on=False)
+    # over contours the cases are white dots (filled with their own value they vanished into the contour of the
+    # same colour); without contours the dots carry the values
+    fill = {"facecolors": "white"} if contoured else {"c": values, "cmap": "viridis", "norm": norm}
+    ax.scatter(X[ok], Y[ok], s=18, edgecolors="k", linewidths=0.6, clip_on=False, zorder=3, label="case computed",
+               **fill)
     if (~ok).any():
         ax.scatter(X[~ok], Y[~ok], marker="x", color="C3", s=24, label="no flutter speed (see summary.json)",
-                   clip_on=False)
-        ax.legend(fontsize=7, loc="best")
-    fig.colorbar(sc, ax=ax, label=label)
+                   clip_on=False, zorder=3)
+    ax.legend(fontsize=7, loc="best", framealpha=0.8)
+    from matplotlib.cm import ScalarMappable
+
+    fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=label)
 
 
 def _axis(levels: list[Any]) -> tuple[np.ndarray, list[str] | None]:
@@ -187,6 +193,9 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
             ax.set_xlabel(keys[0])
             rest = ", ".join(f"{k} = {study.levels[k][0]}" for k in keys[2:])
             ax.set_title(f"{label.split(',')[0]} ({study.options['aero']} aero){'; ' + rest if rest else ''}")
+        fixed = ", ".join(f"{k} = {v}" for k, v in (study.spec.get("set") or {}).items())
+        fig.suptitle(f"flutter map: {len(study.cases)} cases ({' x '.join(str(n) for n in shape)}), "
+                     f"{study.options['aero']} aero{'; ' + fixed if fixed else ''}", fontsize=10)
         files.append(out_dir / "flutter_map.png")
     elif study.kind == "uncertainty":
         u = ds["flutter_speed_mps"].values
