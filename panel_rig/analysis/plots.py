@@ -231,7 +231,11 @@ def plot_control_damping(speeds: np.ndarray, open_roots: list[np.ndarray], close
             ax2.scatter(s.real[sel], s.imag[sel] / (2 * np.pi), **kw)
         if uf is not None:
             ax1.axvline(uf, color=f"C{k}", ls=":", lw=1.2)
-            ax1.annotate(f"{label} U_f = {uf:.2f} m/s", (uf, 6 - 4 * k), fontsize=8, color=f"C{k}")
+            # at the top, on a white ground, the open loop's left of its line and the closed loop's right: over the
+            # data they were hard to read
+            ax1.annotate(f"{label} U_f = {uf:.2f} m/s", (uf, 0.96 - 0.08 * k), xycoords=ax1.get_xaxis_transform(),
+                         xytext=(-3 if k == 0 else 3, 0), textcoords="offset points", ha="right" if k == 0 else "left",
+                         va="top", fontsize=8, color=f"C{k}", bbox=dict(fc="white", ec="none", alpha=0.85, pad=1))
     ax1.axhline(0, color="k", lw=0.5)
     ax2.axvline(0, color="k", lw=0.5)
     ax1.set(xlabel="flow velocity, m/s", ylabel="damping Re(s), 1/s", ylim=(-25, 10), title="(a) damping")
