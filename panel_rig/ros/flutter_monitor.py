@@ -5,9 +5,11 @@ the required one, WARN below it (the procedure stops), ERROR if the panel flutte
 numbers, "nan" when unknown; floats written with ``repr`` so a client rebuilds the estimates bit for bit):
 
 - the plateau: ``point_index`` (results published so far, from 1), ``airspeed_mps`` (the commanded set-point),
-  ``plateau_start_s`` (simulated time of the command), ``settle_s``, ``dwell_s`` (the identified window, simulated
-  seconds), ``fluttered`` (``true``/``false``), ``sim_time_s``, ``identify_wall_s`` (wall seconds the node spent
-  identifying and predicting: simulated time waits meanwhile);
+  ``plateau_start_s`` (simulated time of the command), ``settle_s``, ``dwell_s`` (the monitor's settings,
+  simulated seconds: the window identified is from plateau_start_s + settle_s to the earlier of that + dwell_s and
+  sim_time_s, which a wind-off or the next command can cut short), ``fluttered`` (``true``/``false``),
+  ``sim_time_s``, ``identify_wall_s`` (wall seconds the node spent identifying and predicting: simulated time waits
+  meanwhile);
 - the flutter mode: ``frequency_hz``, ``frequency_ci_low_hz``/``_high_hz``, ``damping_ratio``,
   ``damping_ci_low``/``_high``, and the estimate itself: ``frequency_se_hz``, ``damping_se``, ``dof``,
   ``estimator``, ``n_stable``; the first mode likewise with the prefix ``first_``; ``method`` (ssi-cov,
