@@ -786,6 +786,9 @@ def test_a_replay_without_a_prediction_says_why_not_none() -> None:
     with_one = format_flutter_test({**run, "predicted_flutter_speed_mps": 10.4, "prediction_method": "damping-trend",
                                     "predicted_flutter_speed_ci_mps": [10.1, None]})
     assert "predicted U_f 10.400 m/s (95 % 10.100 .. open) [damping-trend]; model linear U_f 10.480 m/s" in with_one
+    assert "predicted margin" not in with_one  # no margin key: none printed
+    margin = format_flutter_test({**run, "margin": 0.0192, "required_margin": 0.1})
+    assert "max airspeed 10.200 m/s; predicted margin 0.019 at the last point (required 0.1); fluttered" in margin
     # a live test's wall time includes the node's start ("7 s simulated in 4.9 s wall ... RTF 79.7" looked wrong)
     live = format_flutter_test({**run, "simulated_s": 7.0, "wall_s": 4.9, "live": True, "ros_domain_id": 80,
                                 "node_startup_wall_s": 4.7, "test_wall_s": 0.088, "node_rtf": 79.7})
