@@ -155,15 +155,17 @@ RUNNING_SUMS = ("inclusive", "midpoint", "vortex")  # = panel_rig.model.aerodyna
 TURBULENCE_SPECTRA = ("dryden", "von_karman", "off")  # = panel_rig.rig.turbulence.SPECTRA (config is the top layer)
 
 SCHEMA: dict[str, _Spec] = {
-    "panel.length_m": _num("panel_length_m", 0.0, lo_open=True),
-    "panel.thickness_m": _num("panel_thickness_m", 0.0, lo_open=True),
-    "airfoil.length_m": _num("airfoil_length_m", 0.0),
-    "material.density_kgpm3": _num("density_kgpm3", 0.0, lo_open=True),
-    "material.youngs_modulus_pa": _num("youngs_modulus_pa", 0.0, lo_open=True),
+    # physical bounds, wide for studies: a tunnel's panel and airfoil, solids from foam to the densest metal and the
+    # softest rubber to diamond (1e300 m overflowed with a traceback, 1e-300 kg/m^3 gave NaN frequencies)
+    "panel.length_m": _num("panel_length_m", 1e-3, 10.0),
+    "panel.thickness_m": _num("panel_thickness_m", 1e-6, 0.1),
+    "airfoil.length_m": _num("airfoil_length_m", 0.0, 10.0),
+    "material.density_kgpm3": _num("density_kgpm3", 1.0, 1e5),
+    "material.youngs_modulus_pa": _num("youngs_modulus_pa", 1e3, 1e13),
     "material.poisson_ratio": _num("poisson_ratio", -1.0, 0.5, lo_open=True, hi_open=True),
     "structure.damping_ratio": _num("damping_ratio", 0.0, 1.0, hi_open=True),
     "structure.modes": _num("n_modes", 1, 12, kind=int),
-    "air.density_kgpm3": _num("air_density_kgpm3", 0.0),
+    "air.density_kgpm3": _num("air_density_kgpm3", 0.0, 1e3),
     "aero.elements": _num("n_elements", 4, 2000, kind=int),
     "aero.wake_elements": _num("n_wake", 2, 20000, kind=int),
     "aero.wake_relaxation": _num("wake_relaxation", 0.0, 1.0, lo_open=True, hi_open=True),
@@ -172,7 +174,9 @@ SCHEMA: dict[str, _Spec] = {
     "aero.running_sum": _choice("running_sum", RUNNING_SUMS),
     # from 1 us: a step of 1 ns was taken, and `lco --duration 1` then marched 1e9 steps (~17 min) without a word
     "sim.dt_s": _num("dt_s", 1e-6, 0.01),
-    "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, lo_open=True),
+    # the stepper's divergence bound: |w/L| = 2 is twice past any inextensible panel (1e300 let a cubic panel
+    # swing to 179 L and report it as an LCO)
+    "sim.max_tip_w_over_L": _num("max_tip_w_over_L", 0.0, 2.0, lo_open=True),
     "tunnel.turbulence.intensity": _num("turbulence_intensity", 0.0, 0.2),  # sigma / U
     "tunnel.turbulence.length_scale_m": _num("turbulence_length_scale_m", 1e-3, 100.0),
     "tunnel.turbulence.spectrum": _choice("turbulence_spectrum", TURBULENCE_SPECTRA),

@@ -58,6 +58,13 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--rom-modes", "5"], "--aero rom"),  # the full lattice's analysis ignored it
     (["modes", "--set", "structure.modes=two"], "structure.modes"),
     (["modes", "--set", "panel.thickness_m=inf"], "panel.thickness_m: must be a finite number, got 'inf'"),
+    # physical bounds: 1e300 m overflowed with a traceback, 1e-300 kg/m^3 printed NaN frequencies with status 0,
+    # a divergence bound of 1e300 let a cubic panel swing to 179 L as an "LCO"
+    (["modes", "--set", "panel.length_m=1e300"], "panel.length_m: must lie in [0.001, 10], got 1e+300"),
+    (["modes", "--set", "material.density_kgpm3=1e-300"], "material.density_kgpm3: must lie in [1, 100000]"),
+    (["modes", "--set", "panel.thickness_m=1e-300"], "panel.thickness_m: must lie in [1e-06, 0.1]"),
+    (["lco", "--airspeed", "20", "--duration", "1", "--set", "sim.max_tip_w_over_L=1e300"],
+     "sim.max_tip_w_over_L: must lie in (0, 2]"),
     (["modes", "--set", "panel.thickness_m=.nan"], "panel.thickness_m: must be finite, got nan"),  # YAML's NaN
     # a 1 ns step: `lco --duration 1` marched 1e9 steps (~17 min) without a word
     (["lco", "--airspeed", "11", "--duration", "1", "--set", "sim.dt_s=1e-9"], "sim.dt_s: must lie in [1e-06, 0.01]"),
