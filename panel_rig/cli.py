@@ -304,7 +304,7 @@ class Progress:
         if self.on and pct != self._last:
             self._last = pct
             bar = "#" * (pct // 4)
-            print(f"\r{self.label} [{bar:<25}] {pct:3d}%", end="" if pct < 100 else "\n", file=sys.stderr, flush=True)
+            _note(f"\r{self.label} [{bar:<25}] {pct:3d}%", end="" if pct < 100 else "\n")
 
 
 def _airspeed(value: float) -> float:
@@ -496,7 +496,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     cfg = _config(args)
     _duration(args.sweep_duration, "--sweep-duration", cfg)
     out = make_output_dir(args.out, "--out")
-    result = build_report(cfg, out, log=lambda s: print(f"panel-rig paper: {s}", file=sys.stderr),
+    result = build_report(cfg, out, log=lambda s: _note(f"panel-rig paper: {s}"),
                           sweep_s=args.sweep_duration)
     print((out / "report.md").read_text() if not args.json else jsonio.dumps(result, default=float))
     return 0
@@ -593,7 +593,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
                                dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
                                domain_id=args.domain_id, max_points=args.max_points,
-                               progress=lambda line: print(line, file=sys.stderr, flush=True))
+                               progress=_note)
     except (Interrupted, Aborted) as stopped:  # Ctrl-C, SIGTERM, a failed recording or a lost node after points:
         # the points identified so far, reported as a finished test's
         failure = isinstance(stopped, Aborted)
@@ -829,6 +829,16 @@ def _run_subcommand(argv: Sequence[str]) -> int:
     except MemoryError as exc:  # a size the checks let through but this machine cannot hold: one line, not a traceback
         print(f"panel-rig: error: out of memory ({exc or 'the allocation failed'}): use a smaller model", file=sys.stderr)
         return 1
+
+
+def _note(text: str, end: str = "\n") -> None:
+    """A progress line on stderr. A reader that left (`2>&1 >/dev/null | head -1`) does not stop the work: the paper
+    report died there with status 141 after its first figure."""
+    try:
+        print(text, end=end, file=sys.stderr, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)  # the later lines and the exit's flush go nowhere, quietly
+        os.dup2(devnull, sys.stderr.fileno())
 
 
 def _silence_stdout() -> None:

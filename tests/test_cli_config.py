@@ -150,6 +150,21 @@ def test_closed_reader_ends_quietly_with_sigpipe_status(args):
     assert out.stderr == ""
 
 
+def test_a_reader_of_the_progress_lines_that_left_does_not_stop_the_work(tmp_path):
+    """`panel-rig paper 2>&1 >/dev/null | head -1`: the reader of stderr left after the first progress line and the
+    report died with status 141 after its first figure. The progress lines now go nowhere and the work ends."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # every write to stderr fails with EPIPE
+    try:
+        out = subprocess.run([*CLI, "flutter-test", "--in-process", "--dwell", "20", "--max-points", "2", "--bag-dir",
+                              str(tmp_path), "--plot", str(tmp_path / "vg.png")], stdout=subprocess.PIPE,
+                             stderr=write_end, text=True, timeout=300)
+    finally:
+        os.close(write_end)
+    assert out.returncode == 0 and "stop: 2 test points done" in out.stdout, out.stdout
+    assert (tmp_path / "vg.png").is_file()
+
+
 @pytest.mark.parametrize("args", [("modes", "--params"), ("operate", "--profile"), ("study", "--spec")])
 def test_malformed_yaml_is_one_line_with_its_place(tmp_path, args):
     """A parameters file, an operator profile and a study spec that YAML cannot parse: status 2 and one line
