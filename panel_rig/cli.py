@@ -307,12 +307,33 @@ class Progress:
             _note(f"\r{self.label} [{bar:<25}] {pct:3d}%", end="" if pct < 100 else "\n")
 
 
+#: decay times of the mode nearest the band that a dwell should last: the start-up transient is then e^-3 (5 %)
+SETTLING_DECAY_TIMES = 3.0
+
+
+def forced_settling_warning(cfg: Any, variant: str, f0_hz: float, f1_hz: float, dwell_s: float) -> str | None:
+    """A warning when a dwell is shorter than SETTLING_DECAY_TIMES decay times 1/(zeta omega) of the structural
+    mode nearest the band (the sweep has no aero: the structure's damping alone): its amplitudes then hold the
+    start-up transient (`--band 3.5 5 --dwell 1` put the first mode's peak at 4.4 Hz; it is at 4.17)."""
+    from panel_rig.model.linearisation import natural_frequencies_hz
+    from panel_rig.model.structure import build_structure
+
+    f = np.asarray(natural_frequencies_hz(build_structure(cfg), variant), float)
+    fn = float(f[np.argmin(np.abs(f - 0.5 * (f0_hz + f1_hz)))])
+    zeta = cfg.damping_ratio
+    need_s = SETTLING_DECAY_TIMES / (zeta * 2 * np.pi * fn) if zeta > 0 else np.inf
+    if dwell_s >= need_s:
+        return None
+    return (f"warning: --dwell {dwell_s:g} s is shorter than {SETTLING_DECAY_TIMES:g} decay times of the mode at "
+            f"{fn:.2f} Hz (zeta {zeta:g}: {need_s:.1f} s): the amplitudes hold its start-up transient")
+
+
 def _airspeed(value: float) -> float:
     from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 
     if not np.isfinite(value) or value < 0 or value > MAX_AIRSPEED_MPS:
         raise UsageError(f"airspeed must be in [0, {MAX_AIRSPEED_MPS:g}] m/s (the incompressible lattice holds to "
-                         f"about Mach 0.3), got {value:g}")
+                         f"about Mach 0.3), got {value:.10g}")  # 100.0001 read "got 100"
     return value
 
 
@@ -402,12 +423,15 @@ def cmd_forced(args: argparse.Namespace) -> int:
     cfg = _config(args)
     f0, f1 = args.band
     if not (0 < f0 <= f1 <= 500) or not (0 < args.step <= f1 - f0 + 1e-9 or f0 == f1):
-        raise UsageError(f"--band needs 0 < F0 <= F1 <= 500 Hz and 0 < --step <= F1 - F0, got {args.band} "
-                         f"{args.step}")
+        raise UsageError(f"--band needs 0 < F0 <= F1 <= 500 Hz and 0 < --step <= F1 - F0 (F0 = F1: one frequency), "
+                         f"got {args.band} {args.step}")
     _points(f0, f1, args.step, "--band/--step")
     _duration(args.dwell, "--dwell", cfg, least_s=1.0)  # the amplitude is read over the last second of each dwell
-    if not (np.isfinite(args.f0) and args.f0 >= 0):
-        raise UsageError(f"--f0 must be a finite force amplitude >= 0 N/m, got {args.f0}")
+    if not (np.isfinite(args.f0) and args.f0 > 0):  # 0 gave all-zero amplitudes and a "peak" at the band's start
+        raise UsageError(f"--f0 must be a finite force amplitude > 0 N/m, got {args.f0}")
+    unsettled = forced_settling_warning(cfg, args.variant, f0, f1, args.dwell)
+    if unsettled:
+        _note(unsettled)
     try:
         r = forced_sweep(cfg, f0, f1, args.step, args.variant, args.f0, args.dwell, scheme=args.scheme,
                          progress=Progress("forced"))

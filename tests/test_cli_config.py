@@ -107,7 +107,10 @@ def test_flutter_plot(tmp_path):
     (["lco", "--airspeed", "11", "--duration", "1e-9"], "--duration"),
     (["forced", "--band", "23", "24", "--step", "1", "--dwell", "0.5"], "--dwell"),
     (["forced", "--band", "23", "24", "--step", "1", "--f0", "nan"], "--f0"),
-    (["forced", "--band", "4", "4.4", "--step", "0.2", "--dwell", "5", "--f0", "2"], "lower --f0"),  # diverges
+    # zero gave all-zero amplitudes and a "peak" at the band's first frequency
+    (["forced", "--band", "23", "24", "--step", "1", "--f0", "0"], "--f0 must be a finite force amplitude > 0 N/m"),
+    (["lco", "--airspeed", "100.0001"], "got 100.0001"),  # it read "got 100"
+    (["forced", "--band", "4", "4.4", "--step", "0.2", "--dwell", "30", "--f0", "2"], "lower --f0"),  # diverges
     (["lco-sweep", "--airspeeds", "0:100:1e-12"], "points"),
     (["flutter", "--vg", "0:100:1e-9"], "points"),
     (["lco", "--airspeed", "11", "--duration", "1", "--plot", "out/x"], ".png"),  # the JSON named a file not written
@@ -148,6 +151,17 @@ def test_closed_reader_ends_quietly_with_sigpipe_status(args):
         os.close(write_end)
     assert out.returncode == 141
     assert out.stderr == ""
+
+
+def test_a_forced_dwell_too_short_to_settle_is_warned_of():
+    """`forced --band 3.5 5 --dwell 1` put the first mode's peak at 4.4 Hz (it is at 4.17 Hz) without a word: the
+    1 s dwell is a fraction of the mode's decay time 1/(zeta omega) = 7.6 s. A settled dwell gets no warning."""
+    short = run("forced", "--band", "3.5", "5", "--step", "0.5", "--dwell", "1", "--variant", "linear", "--json")
+    assert short.returncode == 0, short.stderr
+    assert short.stderr.strip() == ("warning: --dwell 1 s is shorter than 3 decay times of the mode at 4.17 Hz "
+                                    "(zeta 0.005: 22.9 s): the amplitudes hold its start-up transient"), short.stderr
+    settled = run("forced", "--band", "23", "24", "--step", "1", "--dwell", "4", "--variant", "linear", "--json")
+    assert settled.returncode == 0 and settled.stderr == "", settled.stderr
 
 
 def test_a_reader_of_the_progress_lines_that_left_does_not_stop_the_work(tmp_path):
