@@ -433,3 +433,17 @@ def test_a_range_that_starts_below_zero_gets_the_range_s_message(capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--vg START: airspeed must be in [0, 100] m/s" in err, err
     assert "expected one argument" not in err
+
+
+def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
+    """`lco --airspeed 10.84 --duration 30` (full variant) printed RMS 0.337 and a peak of 1.28 L as any result,
+    while 0.1 % changes of the airspeed or the duration moved the RMS from 0.32 to 0.54: only steady_after_s null
+    hinted at it. A settled cycle within the panel's length gets no warning; a diverged run has its own flag."""
+    from panel_rig.cli import lco_warnings
+
+    settled = {"peak_tip_w_over_L": 0.118, "steady_after_s": 10.0, "diverged": False}
+    assert lco_warnings(settled) == []
+    wild = lco_warnings({"peak_tip_w_over_L": 1.28, "steady_after_s": None, "diverged": False})
+    assert len(wild) == 2 and "|w/L| = 1.28, past the panel's own length" in wild[0]
+    assert "no steady state" in wild[1]
+    assert lco_warnings({"peak_tip_w_over_L": 2.1, "steady_after_s": None, "diverged": True}) == []
