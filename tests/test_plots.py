@@ -22,20 +22,21 @@ def test_lco_sweep_marks_the_diverged_airspeeds(tmp_path, monkeypatch):
     point vanished without a word; it is a cross on the axis now, for both."""
     figures = []
     real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append(fig.axes[0].lines[:]), real_save(fig, path))[1])
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append([ln for ax in fig.axes for ln in ax.lines]),
+                                                           real_save(fig, path))[1])
     nan = math.nan
     res = [LCOResult(10.0, 0.1, 0.15, 22.0, 3.0, False), LCOResult(12.0, nan, nan, nan, None, True, 4.0),
            LCOResult(14.0, 0.3, 0.42, 20.0, 2.0, False), LCOResult(16.0, nan, nan, nan, None, True, 1.0)]
     path = plots.plot_lco_sweep(tmp_path / "fig8.png", np.array([10.0, 12.0, 14.0, 16.0]), res, "Fig. 8")
     assert path.stat().st_size > 0
-    crosses = [ln for ln in figures[0] if ln.get_marker() == "x"]
-    assert len(crosses) == 1 and list(crosses[0].get_xdata()) == [12.0, 16.0]
+    crosses = [ln for ln in figures[0] if ln.get_marker() == "x"]  # on both panels, (a) and (b)
+    assert len(crosses) == 2 and all(list(c.get_xdata()) == [12.0, 16.0] for c in crosses)
     assert "diverged" in crosses[0].get_label()
     # a frequency only where there is an LCO: the decaying run's (10 m/s, RMS 0) drew a false step into the LCO's
     quiet = [LCOResult(10.0, 0.0, 0.0, 22.9, None, False), LCOResult(11.0, 0.3, 0.4, 17.8, 2.0, False)]
     plots.plot_lco_sweep(tmp_path / "fig8b.png", np.array([10.0, 11.0]), quiet, "Fig. 8")
     freq = next(ln for ln in figures[1] if "frequency" in ln.get_label())
-    assert np.isnan(freq.get_ydata()[0]) and freq.get_ydata()[1] == 17.8 / 50.0
+    assert np.isnan(freq.get_ydata()[0]) and freq.get_ydata()[1] == 17.8  # in Hz, on its own panel (b)
 
 
 def test_spectrum_names_its_reference_frequencies_in_the_legend(tmp_path, monkeypatch):

@@ -75,18 +75,34 @@ def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, 
 
 
 def plot_lco_sweep(path: str | Path, airspeed_mps: np.ndarray, results: Sequence[Any], title: str) -> Path:
-    """Fig. 8: RMS tip w/L and, where there is an LCO (RMS at least analyze's ``lco_min_rms``), its frequency / 50
-    Hz against airspeed (a decaying run's frequency drew a false step into the LCO's); diverged runs (no metrics)
-    marked by crosses at the top: beyond the bound, not zero."""
+    """Fig. 8 as the paper draws it: (a) RMS tip w/L and (b) the LCO's frequency against airspeed, each run a marker
+    (the frequency only where there is an LCO, RMS at least analyze's ``lco_min_rms``: a decaying run's drew a
+    false step into the LCO's); diverged runs (no metrics) crosses at the top of both: beyond the bound, not zero.
+    It drew both on one axis before, the frequency as f/50 Hz."""
     from panel_rig.analysis.bag_analysis import Criteria
 
+    u = np.asarray(airspeed_mps, float)
     rms = np.array([r.rms_tip_w_over_L for r in results], dtype=float)
     freq = np.array([r.dominant_frequency_hz for r in results], dtype=float)
     freq[~(rms >= Criteria().lco_min_rms)] = np.nan
-    return plot_series(path, airspeed_mps, [(rms, "RMS tip w/L"), (freq / 50.0, "LCO frequency / 50 Hz")],
-                       "airspeed, m/s", "RMS w/L ; f/50 Hz", title,
-                       marks=(np.array([u for u, r in zip(airspeed_mps, results) if r.diverged]),
-                              "diverged (|tip w/L| over the bound)"), marks_at=0.97)
+    gone = np.array([x for x, r in zip(u, results) if r.diverged])
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ax1.plot(u, rms, "o-", ms=3.5, lw=1.2, label="RMS tip w/L")
+    ax2.plot(u, freq, "o-", ms=3.5, lw=1.2, color="C1", label="LCO frequency")
+    for ax in (ax1, ax2):
+        if gone.size:
+            ax.plot(gone, np.full(gone.size, 0.97), "x", color="C3", label="diverged (|tip w/L| over the bound)",
+                    transform=ax.get_xaxis_transform(), clip_on=False)
+            ax.set_xlim(min(np.nanmin(u), gone.min()) - 0.5, max(np.nanmax(u), gone.max()) + 0.5)
+            lo, hi = ax.get_ylim()  # the data below the crosses (the last LCO point sat under them)
+            ax.set_ylim(lo, lo + (hi - lo) / 0.9)
+        ax.set_xlabel("airspeed, m/s")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    ax1.set(ylabel="RMS tip w/L", title="(a) amplitude")
+    ax2.set(ylabel="frequency, Hz", title="(b) frequency")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
 
 
 def plot_spectrum(path: str | Path, dt_s: float, series: Sequence[tuple[np.ndarray, str]],
