@@ -70,7 +70,9 @@ def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, 
         ax.set_xlim(min(np.nanmin(x), np.min(marks[0])) - 0.5, max(np.nanmax(x), np.max(marks[0])) + 0.5)
     ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    # below the axes: inside, a time history's legend covered its first seconds (Fig. 7's start of the LCO)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=min(3, len(ys) + len(paper) + 1),
+              frameon=False)
     return _save(fig, path)
 
 
