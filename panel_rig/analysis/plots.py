@@ -40,7 +40,7 @@ def plot_flutter_roots(curves: dict[str, tuple[np.ndarray, list[np.ndarray]]], p
             ax1.scatter(np.full(sel.sum(), u), s.real[sel], **kw)
             ax2.scatter(s.real[sel], s.imag[sel] / (2 * np.pi), **kw)
     for k, (label, (uf, ff)) in enumerate((flutter or {}).items()):
-        ax1.axvline(uf, color=f"C{k}", ls=":", lw=1)
+        ax1.axvline(uf, color=f"C{k}", ls=":", lw=1, label=f"{label} U_f = {uf:.2f} m/s")
         ax2.annotate(f"{label}: {uf:.2f} m/s, {ff:.2f} Hz", (0, ff), xytext=(-19, 75 - 7 * k), fontsize=8)
     if paper:
         ax1.axvline(paper[0], color="k", ls="--", lw=1, label=f"paper U_f = {paper[0]} m/s")
@@ -49,7 +49,9 @@ def plot_flutter_roots(curves: dict[str, tuple[np.ndarray, list[np.ndarray]]], p
     ax1.set(xlabel="flow velocity, m/s", ylabel="damping Re(s), 1/s", ylim=(-20, 10), title="(a) damping")
     ax2.set(xlabel="damping Re(s), 1/s", ylabel="frequency, Hz", xlim=(-20, 10), ylim=(0, 80),
             title="(b) root locus")
-    ax1.legend(fontsize=8, loc="lower left")
+    # below the panels: inside, the legend covered the first airspeed's roots; the U_f lines are named in it
+    fig.legend(*ax1.get_legend_handles_labels(), fontsize=8, loc="lower center", ncol=3, frameon=False)
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     return _save(fig, path)
 
 
