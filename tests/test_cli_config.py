@@ -110,6 +110,7 @@ def test_flutter_plot(tmp_path):
     # zero gave all-zero amplitudes and a "peak" at the band's first frequency
     (["forced", "--band", "23", "24", "--step", "1", "--f0", "0"], "--f0 must be a finite force amplitude > 0 N/m"),
     (["lco", "--airspeed", "100.0001"], "got 100.0001"),  # it read "got 100"
+    (["flutter", "--plot", "out/zz.png/"], "is a directory"),  # it wrote the file out/zz.png
     (["forced", "--band", "4", "4.4", "--step", "0.2", "--dwell", "30", "--f0", "2"], "lower --f0"),  # diverges
     (["lco-sweep", "--airspeeds", "0:100:1e-12"], "points"),
     (["flutter", "--vg", "0:100:1e-9"], "points"),
@@ -447,3 +448,17 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
     assert len(wild) == 2 and "|w/L| = 1.28, past the panel's own length" in wild[0]
     assert "no steady state" in wild[1]
     assert lco_warnings({"peak_tip_w_over_L": 2.1, "steady_after_s": None, "diverged": True}) == []
+
+
+def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
+    """`--set sim.dt_s=0.01` (1.4 steps a period of the 73 Hz mode) moved the stiffness LCO from 23.15 to 20.43 Hz
+    without a word; the default step (28 steps) and 1 ms (13.7) get no warning."""
+    from panel_rig.cli import coarse_step_warning
+
+    cfg = load_config(None, ())
+    assert coarse_step_warning(cfg) is None and coarse_step_warning(cfg.replace(dt_s=0.001)) is None
+    assert coarse_step_warning(cfg.replace(dt_s=0.01)) == (
+        "warning: sim.dt_s = 0.01 s resolves the highest mode (73.2 Hz) with 1.4 steps a period (fewer than 10): "
+        "the results are not converged in the step")
+    out = run("modes", "--set", "sim.dt_s=0.01")
+    assert out.returncode == 0 and out.stderr.startswith("warning: sim.dt_s = 0.01 s"), out.stderr
