@@ -72,7 +72,9 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
                        for b, (lo, hi) in enumerate(BANDS_HZ)]
     lin = [r.peak_frequency_hz for r in forced["linear"]]
     add("F2", "forced, linear: peaks (Hz)", "natural frequencies, largest amplitudes", lin,
-        all(abs(p - fn) <= 0.1 for p, fn in zip(lin, f[:2])), "within the 0.1 Hz sweep step")
+        all(abs(p - fn) <= 0.1 for p, fn in zip(lin, f[:2])),
+        "peak frequencies within the 0.1 Hz sweep step; the amplitudes are not compared: the step is wider than the "
+        "first mode's half-power band (2 zeta f = 0.04 Hz), so a sampled peak's height depends on where the grid falls")
     for id_, var in (("F1", "full"), ("F3", "stiffness"), ("F4", "inertia")):
         peaks = [r.peak_frequency_hz for r in forced[var]]
         want = paper_peaks[var]
