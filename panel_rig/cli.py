@@ -557,7 +557,9 @@ def cmd_static(args: argparse.Namespace) -> int:
         f"P L^2/D          {r.alpha:10.5f}   (P = {alpha * D / L**2:.5g} N/m)\n"
         f"tip w/L          {r.tip_w_over_L:10.5f}\n"
         f"tip u/L          {r.tip_u_over_L:10.5f}   (axial shortening)\n"
-        f"tip angle, rad   {r.tip_angle_rad:10.5f}" + ("" if note is None else f"\nnote: {note}")))
+        + (f"tip angle, rad   {r.tip_angle_rad:10.5f}" if np.isfinite(r.tip_angle_rad)
+           else "tip angle, rad            -   (none: the cubic slope exceeds 1, asin has no angle)")
+        + ("" if note is None else f"\nnote: {note}")))
     return 0
 
 
