@@ -462,3 +462,10 @@ def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
         "the results are not converged in the step")
     out = run("modes", "--set", "sim.dt_s=0.01")
     assert out.returncode == 0 and out.stderr.startswith("warning: sim.dt_s = 0.01 s"), out.stderr
+
+
+def test_static_text_has_no_nan_angle():
+    """`static --variant full` at P L^2/D = 5 printed "tip angle, rad nan" (the JSON had null)."""
+    out = run("static", "--tip-load-parameter", "5", "--variant", "full")
+    assert out.returncode == 0 and "nan" not in out.stdout, out.stdout
+    assert "tip angle, rad            -   (none: the cubic slope exceeds 1" in out.stdout
