@@ -400,7 +400,10 @@ def cmd_lco(args: argparse.Namespace) -> int:
 
         t = np.arange(tip.size) * cfg.dt_s
         gone = payload.get("diverged_at_s") if payload.get("diverged") else None
-        title = f"U = {args.airspeed} m/s" + ("" if gone is None else f": diverged at {gone:.2f} s (|w/L| over the bound)")
+        tunnel = ("" if "turbulence_intensity" not in payload else
+                  f", turbulence {100 * payload['turbulence_intensity']:g} % (seed {payload['seed']})")
+        title = (f"U = {args.airspeed} m/s: {args.variant}, {args.aero} aero{tunnel}"
+                 + ("" if gone is None else f": diverged at {gone:.2f} s (|w/L| over the bound)"))
         payload["plot"] = str(plot_series(args.plot, t, [(tip, f"{args.variant}, {args.aero}")], "time, s",
                                           "tip w/L", title,
                                           marks=None if gone is None else (np.array([gone]), "diverged")))
@@ -491,7 +494,9 @@ def cmd_forced(args: argparse.Namespace) -> int:
         from panel_rig.analysis.plots import plot_series
 
         payload["plot"] = str(plot_series(args.plot, r.frequency_hz, [(r.amplitude_tip_w_over_L, args.variant)],
-                                          "frequency, Hz", "tip w/L amplitude", "forced response (F0)"))
+                                          "frequency, Hz", "tip w/L amplitude",
+                                          f"forced response (F0): {args.variant}, f0 = {args.f0:g} N/m, dwell "
+                                          f"{args.dwell:g} s"))
     _emit(args, payload, lambda: f"peak at {r.peak_frequency_hz:.2f} Hz\n" + "\n".join(
         f"{fr:6.2f} Hz  {a:.5f}" for fr, a in zip(r.frequency_hz, r.amplitude_tip_w_over_L)))
     return 0
