@@ -321,8 +321,8 @@ def test_fast_node_holds_its_realtime_factor_cap(ros_env: dict[str, str]) -> Non
 def test_late_real_time_tick_publishes_the_samples_it_owes(ros_env: dict[str, str],
                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """Real-time mode: a tick that comes 10 ms late (a loaded machine) publishes the samples it owes, one publish
-    period apart, then the present one (it used to publish only the present one: ~20 % of the readings were
-    missing with both cores busy); an on-time tick publishes one. The node's steady clock is a fake one here."""
+    period apart on the publish grid (it used to publish only the present one: ~20 % of the readings were missing
+    with both cores busy); an on-time tick publishes one. The node's steady clock is a fake one here."""
     import types
 
     import rclpy
@@ -349,9 +349,9 @@ def test_late_real_time_tick_publishes_the_samples_it_owes(ros_env: dict[str, st
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     dt = node.dt_s
-    assert [len(p) for p in published] == [1, 1, 5]  # the late tick: four owed samples and the present one
+    assert [len(p) for p in published] == [1, 1, 5]  # the late tick: the five grid points it passed
     owed = np.concatenate(published[1:])
-    assert owed == pytest.approx([0.004, 0.006, 0.008, 0.010, 0.012, 0.0141], abs=dt)  # at whole steps
+    assert owed == pytest.approx([0.004, 0.006, 0.008, 0.010, 0.012, 0.014], abs=dt)  # at whole steps
 
 
 def test_node_with_an_unreachable_viewer_closes_its_bag_and_stops(ros_env: dict[str, str], tmp_path: Path) -> None:

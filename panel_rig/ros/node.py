@@ -39,7 +39,7 @@ from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.diagnostics import diagnostic_level, diagnostic_values, jitter_p99_ms, run_stats
-from panel_rig.ros.pacing import ClientHolds, step_counts, tick_counts
+from panel_rig.ros.pacing import ClientHolds, step_counts, tick_samples
 from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
@@ -162,7 +162,7 @@ class RigNode(Node):
         self._wall_anchor = self._wall0
         self._sim_anchor = self.rig.time_s
         self._last_tick: float | None = None
-        self._last_sample_s = self.rig.time_s  # real time: the last published sample's simulated time
+        self._next_sample_s = self.rig.time_s + self._publish_period_s  # real time: the publish grid's next point
         self.tick_intervals_s: deque[float] = deque(maxlen=500_000)
         self._window_intervals: list[float] = []
         self._diag_wall = self._wall0
@@ -288,6 +288,7 @@ class RigNode(Node):
                 self.destroy_timer(self._tick_timer)
                 self._tick_timer = self.create_timer(self._publish_period_s, self._tick)
                 self._last_tick = None
+            self._next_sample_s = self.rig.time_s + self._publish_period_s  # the grid of the new rate
         if "shape_rate_hz" in pending:
             self.publication.shape_period_s = 1.0 / pending["shape_rate_hz"]
         if "diagnostics_rate_hz" in pending:
@@ -477,9 +478,10 @@ class RigNode(Node):
 
     # ---- time ------------------------------------------------------------------------------------------
     def _tick(self) -> None:
-        """Real-time tick: step to the steady clock (bounded by one tick of wall time) and publish. A late tick
-        also publishes the samples it owes, one publish period apart (as a data-acquisition buffer would), so a
-        loaded machine delays readings instead of dropping them; only those within max_lag_s are owed."""
+        """Real-time tick: step to the last point of the publish grid the steady clock has passed (bounded by one
+        tick of wall time) and publish. A late tick also publishes the samples it owes, one publish period apart (as
+        a data-acquisition buffer would), so a loaded machine delays readings instead of dropping them; only those
+        within max_lag_s are owed."""
         now = time.monotonic()
         if self._last_tick is not None:
             interval = now - self._last_tick
@@ -493,14 +495,17 @@ class RigNode(Node):
         while self.rig.time_s < owed_from_s and self.rig.advance_to(owed_from_s, max_steps=chunk) \
                 and time.monotonic() < deadline:
             pass
-        if time.monotonic() < deadline:  # on time (as nearly always): one compiled call up to the clock
-            counts = tick_counts(self.rig.time_s, self._last_sample_s, target, self._publish_period_s, self.dt_s)
-            self.publication.publish_block(self.rig.advance_samples(counts))
+        if time.monotonic() < deadline:  # on time (as nearly always): one compiled call to the grid's last point
+            times, self._next_sample_s = tick_samples(self._next_sample_s, self.rig.time_s, target,
+                                                      self._publish_period_s)
+            if times:
+                self.publication.publish_block(self.rig.advance_samples(step_counts(self.rig.time_s, times,
+                                                                                   self.dt_s)))
         else:
             self.publication.publish_readings()
         self._diagnose_new_abort()
-        self._last_sample_s = self.rig.time_s
-        lag = target - self.rig.time_s
+        # behind the clock by more than the grid allows (the next point is up to a period and a step ahead)
+        lag = target - self.rig.time_s - self._publish_period_s - self.dt_s
         if lag > self._max_lag_s:
             # cannot catch up within the bound: count it and let simulated time slip
             self.rig.note_overrun()

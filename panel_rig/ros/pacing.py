@@ -1,8 +1,8 @@
 """How far the rig node steps at a time, and when simulated time waits for a client.
 
 :func:`step_counts` turns the sample times of a block into whole physics steps before each sample (what
-``Rig.advance_samples`` marches); :func:`tick_counts` gives the samples of a real-time tick (one publish period
-apart, the samples a late tick owes, then the clock). :class:`ClientHolds` is the fast mode's waits for a client:
+``Rig.advance_samples`` marches); :func:`tick_samples` gives the samples of a real-time tick on the publish
+grid (one publish period apart; a late tick's are the samples it owes). :class:`ClientHolds` is the fast mode's waits for a client:
 simulated time does not start before the first command (``fast_wait_for_command``) and stops at each published
 flutter-test point until the next airspeed command (``flutter_test.hold``); each is released after
 ``HOLD_TIMEOUT_S`` of wall time, logged. The node asks; the loop that runs it (:func:`panel_rig.ros.rig_node.spin`)
@@ -30,14 +30,17 @@ def step_counts(time_s: float, targets_s: Iterable[float], dt_s: float) -> list[
     return counts
 
 
-def tick_counts(time_s: float, last_sample_s: float, target_s: float, period_s: float, dt_s: float) -> list[int]:
-    """Steps before each sample of a real-time tick: one publish period after the last sample while that
-    leaves more than half a period to ``target_s`` (the samples a late tick owes), then ``target_s``."""
-    times, last = [], max(last_sample_s, time_s)
-    while last + 1.5 * period_s <= target_s:
-        last += period_s
-        times.append(last)
-    return step_counts(time_s, (*times, target_s), dt_s)
+def tick_samples(next_sample_s: float, time_s: float, target_s: float, period_s: float) -> tuple[list[float], float]:
+    """The samples of a real-time tick on the publish grid, and the grid's next point: every grid point from
+    ``next_sample_s`` up to the clock ``target_s`` (several when the tick is late: the samples it owes; none when
+    timer jitter brought it before the next one). A grid point the rig has already passed (a catch-up march without
+    samples) moves on by whole periods. Samples at the tick's own clock time were 1-6 physics steps apart and
+    501.5 a second at 500 Hz: a late tick's owed samples came on top of the next tick's."""
+    start = next_sample_s
+    if start < time_s - 1e-12:
+        start += math.ceil((time_s - start) / period_s - 1e-9) * period_s
+    n = max(math.floor((target_s - start) / period_s + 1e-9) + 1, 0)
+    return [start + k * period_s for k in range(n)], start + n * period_s
 
 
 class ClientHolds:
