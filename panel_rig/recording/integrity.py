@@ -131,7 +131,7 @@ class McapScan:
     def describe(self, p: Problem) -> str:
         """`chunk 9 at byte 723118 (t 23.10-25.93 s, 512 messages): CRC mismatch`."""
         if p.chunk is None:
-            return f"byte {p.offset}: {p.what}"
+            return f"from byte {p.offset}: {p.what}"  # "dropped byte N" read as one byte
         c = p.chunk
         where = f"chunk {c.index} at byte {c.offset}"
         details = [self.time_range(c.start_ns, c.end_ns)]

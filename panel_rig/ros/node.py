@@ -56,6 +56,8 @@ from panel_rig.topics import REJECTED_SUFFIX
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: the echoes of refused commands: a burst (20 NaNs 5 ms apart) overran a depth of 10 and a monitor saw 5 of them
+REJECTED_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 FAST_MAX_BLOCK_PERIODS = 64  # fast mode: publish periods marched in one compiled call (at most)
 LOCKSTEP_TIMEOUT_S = 0.5  # fast mode with a controller: wall time to wait for its answer before running free
@@ -415,7 +417,7 @@ class RigNode(Node):
         """The subscription callback of one command topic: apply, record, and on a refusal warn and echo the
         command on ``<topic>/rejected`` (live, so a client knows which of its commands did not act)."""
         full = self._topic_name(topic)
-        echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, COMMAND_QOS)
+        echo = self.create_publisher(Float64, topic + REJECTED_SUFFIX, REJECTED_QOS)
 
         def callback(msg: Float64) -> None:
             self.holds.command_arrived()
