@@ -4,7 +4,8 @@
 REJECTED_SUFFIX = "/rejected"
 
 #: the rig's status on /diagnostics (diagnostic_updater's "<node>: <task>" form); its hardware_id is the rig node's
-#: namespace. Its values include the aborts: ``aborts`` (count), ``abort_reason``, ``last_abort_time_s`` (rig time)
+#: namespace. Its values include the aborts: ``aborts`` (count), ``abort_reason``, ``last_abort_time_s`` (rig time),
+#: ``last_abort_reason``
 RIG_STATUS_NAME = "panel_rig: tunnel"
 
 #: the flutter monitor's results (``diagnostic_msgs/DiagnosticArray``, one per test point; see

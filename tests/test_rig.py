@@ -229,6 +229,8 @@ def test_operator_abort_and_reset():
     assert rig.state == RUNNING and rig.actuator.airspeed_mps == 0.0
     assert rig.reading().tip_w_over_L == 0.0
     assert rig.command_airspeed(5.0).accepted
+    # the present abort's reason is gone; the last abort's stays with its time (diagnostics: last_abort_reason)
+    assert rig.abort_reason == "" and rig.last_abort_reason == "test" and rig.abort_time_s == t_abort
 
 
 def test_over_limit_tip_aborts():

@@ -133,6 +133,7 @@ class Rig:
         self.state = RUNNING
         self.abort_reason = ""
         self.abort_time_s = math.nan  # simulated time of the last abort
+        self.last_abort_reason = ""  # the last abort's reason, kept after a reset (abort_reason is the present one)
         self.rejected_count = 0
         self.last_rejection = ""
         self.overrun_count = 0
@@ -396,7 +397,7 @@ class Rig:
         self.abort_time_s = self._time_s
         self.log.error(f"rig aborted at t = {self._time_s:.3f} s: {reason}")
         self.state = ABORTED
-        self.abort_reason = reason
+        self.abort_reason = self.last_abort_reason = reason
 
     def reset(self) -> None:
         """Model at rest, airspeed 0, shaker off, state running. Time and counters continue."""

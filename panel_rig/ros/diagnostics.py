@@ -68,6 +68,8 @@ def diagnostic_values(rig: Rig, recording: Recording, *, fast: bool, rtf: float,
         "abort_reason": rig.abort_reason,
         "aborts": rig.abort_count,
         "last_abort_time_s": f"{rig.abort_time_s:.6f}" if rig.abort_count else "",
+        # with the time it belongs to (after a reset abort_reason was '' beside the last abort's time)
+        "last_abort_reason": rig.last_abort_reason,
         "airspeed_setpoint_mps": f"{rig.actuator.setpoint_mps:.4f}",
         "airspeed_mps": f"{rig.actuator.airspeed_mps:.4f}",
         "tick_jitter_p99_ms": f"{jitter_ms:.3f}",
