@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.analysis.run_checks import coarse_step_warning, forced_settling_warning
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import MAX_DURATION_S, ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
@@ -44,30 +45,6 @@ def _config(args: argparse.Namespace) -> PanelConfig:
     if coarse:
         _note(coarse)
     return cfg
-
-
-#: physics steps per period of the highest structural mode below which a run is warned of (the default step,
-#: 1/2048 s, gives 28 for the paper's 73 Hz third mode)
-MIN_STEPS_PER_PERIOD = 10.0
-
-
-def coarse_step_warning(cfg: PanelConfig) -> str | None:
-    """A warning when ``sim.dt_s`` resolves the highest structural mode with fewer than MIN_STEPS_PER_PERIOD steps
-    a period: `--set sim.dt_s=0.01` (1.4 steps of the 73 Hz mode) moved the stiffness LCO from 23.15 to 20.43 Hz
-    and its RMS by 75 % without a word."""
-    from panel_rig.config import PanelConfig as _Defaults
-
-    if cfg.dt_s <= _Defaults().dt_s:
-        return None
-    from panel_rig.model.linearisation import natural_frequencies_hz
-    from panel_rig.model.structure import build_structure
-
-    f_max = float(np.max(natural_frequencies_hz(build_structure(cfg), "linear")))
-    steps = 1.0 / (f_max * cfg.dt_s)
-    if steps >= MIN_STEPS_PER_PERIOD:
-        return None
-    return (f"warning: sim.dt_s = {cfg.dt_s:g} s resolves the highest mode ({f_max:.1f} Hz) with {steps:.1f} steps a "
-            f"period (fewer than {MIN_STEPS_PER_PERIOD:g}): the results are not converged in the step")
 
 
 MAX_RANGE_POINTS = 10_000
@@ -335,27 +312,6 @@ class Progress:
             _note(f"\r{self.label} [{bar:<25}] {pct:3d}%", end="" if pct < 100 else "\n")
 
 
-#: decay times of the mode nearest the band that a dwell should last: the start-up transient is then e^-3 (5 %)
-SETTLING_DECAY_TIMES = 3.0
-
-
-def forced_settling_warning(cfg: Any, variant: str, f0_hz: float, f1_hz: float, dwell_s: float) -> str | None:
-    """A warning when a dwell is shorter than SETTLING_DECAY_TIMES decay times 1/(zeta omega) of the structural
-    mode nearest the band (the sweep has no aero: the structure's damping alone): its amplitudes then hold the
-    start-up transient (`--band 3.5 5 --dwell 1` put the first mode's peak at 4.4 Hz; it is at 4.17)."""
-    from panel_rig.model.linearisation import natural_frequencies_hz
-    from panel_rig.model.structure import build_structure
-
-    f = np.asarray(natural_frequencies_hz(build_structure(cfg), variant), float)
-    fn = float(f[np.argmin(np.abs(f - 0.5 * (f0_hz + f1_hz)))])
-    zeta = cfg.damping_ratio
-    need_s = SETTLING_DECAY_TIMES / (zeta * 2 * np.pi * fn) if zeta > 0 else np.inf
-    if dwell_s >= need_s:
-        return None
-    return (f"warning: --dwell {dwell_s:g} s is shorter than {SETTLING_DECAY_TIMES:g} decay times of the mode at "
-            f"{fn:.2f} Hz (zeta {zeta:g}: {need_s:.1f} s): the amplitudes hold its start-up transient")
-
-
 def _airspeed(value: float) -> float:
     from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 
@@ -480,7 +436,7 @@ def cmd_forced(args: argparse.Namespace) -> int:
     _duration(args.dwell, "--dwell", cfg, least_s=1.0)  # the amplitude is read over the last second of each dwell
     if not (np.isfinite(args.f0) and args.f0 > 0):  # 0 gave all-zero amplitudes and a "peak" at the band's start
         raise UsageError(f"--f0 must be a finite force amplitude > 0 N/m, got {args.f0}")
-    unsettled = forced_settling_warning(cfg, args.variant, f0, f1, args.dwell)
+    unsettled = forced_settling_warning(cfg, f0, f1, args.dwell)
     if unsettled:
         _note(unsettled)
     try:

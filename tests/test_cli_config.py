@@ -453,7 +453,7 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
 def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
     """`--set sim.dt_s=0.01` (1.4 steps a period of the 73 Hz mode) moved the stiffness LCO from 23.15 to 20.43 Hz
     without a word; the default step (28 steps) and 1 ms (13.7) get no warning."""
-    from panel_rig.cli import coarse_step_warning
+    from panel_rig.analysis.run_checks import coarse_step_warning
 
     cfg = load_config(None, ())
     assert coarse_step_warning(cfg) is None and coarse_step_warning(cfg.replace(dt_s=0.001)) is None
@@ -462,6 +462,22 @@ def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
         "the results are not converged in the step")
     out = run("modes", "--set", "sim.dt_s=0.01")
     assert out.returncode == 0 and out.stderr.startswith("warning: sim.dt_s = 0.01 s"), out.stderr
+
+
+def test_the_run_checks_build_the_structure_once(monkeypatch):
+    """A `forced` run with a step coarser than the default is checked twice (the step, the dwell); both read the
+    natural frequencies of one cached structure (each built it before)."""
+    import panel_rig.model.structure as structure
+    from panel_rig.analysis import run_checks
+
+    built = []
+    real = structure.build_structure
+    monkeypatch.setattr(structure, "build_structure", lambda cfg: built.append(cfg) or real(cfg))
+    run_checks.natural_frequencies_hz.cache_clear()
+    cfg = load_config(None, ()).replace(dt_s=0.01)
+    assert run_checks.coarse_step_warning(cfg) is not None
+    assert run_checks.forced_settling_warning(cfg, 3.5, 5.0, 1.0) is not None
+    assert len(built) == 1
 
 
 def test_static_text_has_no_nan_angle():
