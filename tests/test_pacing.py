@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from panel_rig.ros.pacing import step_counts, tick_samples
+from panel_rig.ros.pacing import PublishGrid, step_counts
 
 DT_S, PERIOD_S = 1.0 / 2048, 1.0 / 500
 
 
 def _run(tick_times_s: np.ndarray) -> np.ndarray:
     """The node's tick loop on a fake rig: sample times (simulated s) for ticks at ``tick_times_s``."""
-    rig_s, next_s, samples = 0.0, 0.0, []
+    rig_s, grid, samples = 0.0, PublishGrid(0.0, PERIOD_S, next_index=0), []
     for target in tick_times_s:
-        times, next_s = tick_samples(next_s, rig_s, float(target), PERIOD_S)
+        times = grid.tick(rig_s, float(target))
         for n in step_counts(rig_s, times, DT_S):
             rig_s += n * DT_S
             samples.append(rig_s)
@@ -38,9 +38,19 @@ def test_a_jittery_timer_samples_on_the_grid_at_the_publish_rate():
 
 
 def test_a_tick_before_the_next_grid_point_samples_nothing_and_a_catch_up_moves_the_grid_on():
-    times, nxt = tick_samples(0.010, 0.008, 0.0095, PERIOD_S)
-    assert times == [] and nxt == 0.010
-    times, nxt = tick_samples(0.010, 0.008, 0.0141, PERIOD_S)  # a late tick: the two points it owes
-    assert np.allclose(times, [0.010, 0.012, 0.014]) and np.isclose(nxt, 0.016)
-    times, nxt = tick_samples(0.010, 0.0131, 0.0141, PERIOD_S)  # the rig marched past 0.010 and 0.012 unsampled
-    assert np.allclose(times, [0.014]) and np.isclose(nxt, 0.016)
+    grid = PublishGrid(0.0, PERIOD_S, next_index=5)  # next point 0.010 s
+    assert grid.tick(0.008, 0.0095) == [] and grid.next_index == 5
+    assert np.allclose(grid.tick(0.008, 0.0141), [0.010, 0.012, 0.014]) and grid.next_index == 8  # a late tick
+    grid.next_index = 5
+    # the rig marched past 0.010 and 0.012 unsampled: they are skipped
+    assert np.allclose(grid.tick(0.0131, 0.0141), [0.014]) and grid.next_index == 8
+
+
+def test_the_grid_does_not_drift_over_a_day():
+    """A running sum of periods drifted ~1e-9 s in a day at 500 Hz; grid points are the anchor plus k periods."""
+    anchor, day = 12.3456789, 86_400.0
+    grid = PublishGrid(anchor, PERIOD_S)
+    grid.next_index = round(day / PERIOD_S)
+    times = grid.tick(anchor + day - 1e-6, anchor + day + 0.5 * PERIOD_S)
+    assert times == [anchor + round(day / PERIOD_S) * PERIOD_S]
+    assert abs(times[0] - (anchor + day)) < 1e-10

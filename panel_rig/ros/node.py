@@ -39,7 +39,7 @@ from panel_rig.rig.rig import ABORTED, Rig, StepperLike, TunnelSettings, tunnel_
 from panel_rig.rig.safety import SafetyLimits
 from panel_rig.ros import messages
 from panel_rig.ros.diagnostics import diagnostic_level, diagnostic_values, jitter_p99_ms, run_stats
-from panel_rig.ros.pacing import ClientHolds, step_counts, tick_samples
+from panel_rig.ros.pacing import ClientHolds, PublishGrid, step_counts
 from panel_rig.ros.params import (
     CONTROL_FIELDS,
     LIMIT_FIELDS,
@@ -164,7 +164,7 @@ class RigNode(Node):
         self._wall_anchor = self._wall0
         self._sim_anchor = self.rig.time_s
         self._last_tick: float | None = None
-        self._next_sample_s = self.rig.time_s + self._publish_period_s  # real time: the publish grid's next point
+        self._grid = PublishGrid(self.rig.time_s, self._publish_period_s)  # real time: the readings' sample times
         self.tick_intervals_s: deque[float] = deque(maxlen=500_000)
         self._window_intervals: list[float] = []
         self._diag_wall = self._wall0
@@ -290,7 +290,7 @@ class RigNode(Node):
                 self.destroy_timer(self._tick_timer)
                 self._tick_timer = self.create_timer(self._publish_period_s, self._tick)
                 self._last_tick = None
-            self._next_sample_s = self.rig.time_s + self._publish_period_s  # the grid of the new rate
+            self._grid = PublishGrid(self.rig.time_s, self._publish_period_s)  # the grid of the new rate
         if "shape_rate_hz" in pending:
             self.publication.shape_period_s = 1.0 / pending["shape_rate_hz"]
         if "diagnostics_rate_hz" in pending:
@@ -498,8 +498,7 @@ class RigNode(Node):
                 and time.monotonic() < deadline:
             pass
         if time.monotonic() < deadline:  # on time (as nearly always): one compiled call to the grid's last point
-            times, self._next_sample_s = tick_samples(self._next_sample_s, self.rig.time_s, target,
-                                                      self._publish_period_s)
+            times = self._grid.tick(self.rig.time_s, target)
             if times:
                 self.publication.publish_block(self.rig.advance_samples(step_counts(self.rig.time_s, times,
                                                                                    self.dt_s)))

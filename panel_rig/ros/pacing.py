@@ -1,7 +1,7 @@
 """How far the rig node steps at a time, and when simulated time waits for a client.
 
 :func:`step_counts` turns the sample times of a block into whole physics steps before each sample (what
-``Rig.advance_samples`` marches); :func:`tick_samples` gives the samples of a real-time tick on the publish
+``Rig.advance_samples`` marches); :class:`PublishGrid` gives the samples of a real-time tick on the publish
 grid (one publish period apart; a late tick's are the samples it owes). :class:`ClientHolds` is the fast mode's waits for a client:
 simulated time does not start before the first command (``fast_wait_for_command``) and stops at each published
 flutter-test point until the next airspeed command (``flutter_test.hold``); each is released after
@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 HOLD_TIMEOUT_S = 60.0  # fast mode, flutter_test.hold: wall time to wait for the client's next airspeed command
@@ -30,17 +31,31 @@ def step_counts(time_s: float, targets_s: Iterable[float], dt_s: float) -> list[
     return counts
 
 
-def tick_samples(next_sample_s: float, time_s: float, target_s: float, period_s: float) -> tuple[list[float], float]:
-    """The samples of a real-time tick on the publish grid, and the grid's next point: every grid point from
-    ``next_sample_s`` up to the clock ``target_s`` (several when the tick is late: the samples it owes; none when
-    timer jitter brought it before the next one). A grid point the rig has already passed (a catch-up march without
-    samples) moves on by whole periods. Samples at the tick's own clock time were 1-6 physics steps apart and
-    501.5 a second at 500 Hz: a late tick's owed samples came on top of the next tick's."""
-    start = next_sample_s
-    if start < time_s - 1e-12:
-        start += math.ceil((time_s - start) / period_s - 1e-9) * period_s
-    n = max(math.floor((target_s - start) / period_s + 1e-9) + 1, 0)
-    return [start + k * period_s for k in range(n)], start + n * period_s
+@dataclass
+class PublishGrid:
+    """The real-time node's sample times on the publish grid: ``anchor_s + k period_s`` for an integer index k from
+    ``next_index`` on (an index from an anchor does not drift as a running sum of periods does: ~1e-9 s a day)."""
+
+    anchor_s: float
+    period_s: float
+    next_index: int = 1
+
+    def point_s(self, k: int) -> float:
+        """Grid point k (simulated s)."""
+        return self.anchor_s + k * self.period_s
+
+    def tick(self, time_s: float, target_s: float) -> list[float]:
+        """The samples of a real-time tick: every grid point from the next one up to the clock ``target_s`` (several
+        when the tick is late: the samples it owes; none when timer jitter brought it before the next one). A grid
+        point the rig (at ``time_s``) has already passed, in a catch-up march without samples, is skipped. Samples at
+        the tick's own clock time were 1-6 physics steps apart and 501.5 a second at 500 Hz: a late tick's owed
+        samples came on top of the next tick's."""
+        k = self.next_index
+        if self.point_s(k) < time_s - 1e-12:
+            k += math.ceil((time_s - self.point_s(k)) / self.period_s - 1e-9)
+        n = max(math.floor((target_s - self.point_s(k)) / self.period_s + 1e-9) + 1, 0)
+        self.next_index = k + n
+        return [self.point_s(k + i) for i in range(n)]
 
 
 class ClientHolds:
