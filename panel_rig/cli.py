@@ -21,7 +21,7 @@ from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import MAX_DURATION_S, ConfigError, PanelConfig, load_config
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
 from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path, rrd_path_problem
-from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Aborted, Interrupted
+from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Aborted, StoppedRun
 
 
 class UsageError(Exception):
@@ -629,14 +629,13 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
                                dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
                                domain_id=args.domain_id, max_points=args.max_points,
                                progress=_note)
-    except (Interrupted, Aborted) as stopped:  # Ctrl-C, SIGTERM, a failed recording or a lost node after points:
-        # the points identified so far, reported as a finished test's
-        failure = isinstance(stopped, Aborted)
-        print(f"panel-rig flutter-test: {stopped.message}" if failure else stopped.message, file=sys.stderr,
-              flush=True)
+    except StoppedRun as stopped:  # Ctrl-C, SIGTERM, a failed recording or a lost node after points:
+        # the points identified so far, reported as a finished test's (a signal's line names the test itself)
+        print(f"panel-rig flutter-test: {stopped.message}" if isinstance(stopped, Aborted) else stopped.message,
+              file=sys.stderr, flush=True)
         partial = {**stopped.payload, "rerun": args.rerun}
         _emit(args, partial, lambda: format_flutter_test(partial))
-        return 1 if failure else stopped.exit_status
+        return stopped.exit_status
     except RuntimeError as exc:  # the live node failed to start or stopped answering (its log is named)
         print(f"panel-rig flutter-test: {exc}", file=sys.stderr)
         return 1

@@ -104,14 +104,28 @@ def interruption(exc: BaseException) -> signal.Signals | None:
     return None
 
 
-class Interrupted(BaseException):
-    """A run stopped by a signal, with what it measured so far (``payload``, to report) and a line saying so
-    (``message``). A BaseException, as KeyboardInterrupt: no ``except Exception`` on the way takes it for an
-    error."""
+class StoppedRun(BaseException):
+    """A run that stopped before its end with what it measured so far (``payload``, to report as a stopped run's), a
+    line saying why (``message``) and the program's exit status (``exit_status``). The two kinds below differ in
+    what ``except`` takes them: :class:`Interrupted` (a signal) and :class:`Aborted` (a failure)."""
+
+    def __init__(self, payload: dict, message: str) -> None:
+        super().__init__(message)
+        self.payload, self.message = payload, message
+
+    @property
+    def exit_status(self) -> int:
+        """The program's exit status for this stop."""
+        raise NotImplementedError
+
+
+class Interrupted(StoppedRun):
+    """A run stopped by a signal. A BaseException, as KeyboardInterrupt: no ``except Exception`` on the way takes it
+    for an error."""
 
     def __init__(self, signum: signal.Signals, payload: dict, message: str) -> None:
-        super().__init__(message)
-        self.signum, self.payload, self.message = signum, payload, message
+        super().__init__(payload, message)
+        self.signum = signum
 
     @property
     def exit_status(self) -> int:
@@ -119,14 +133,14 @@ class Interrupted(BaseException):
         return 128 + int(self.signum)
 
 
-class Aborted(RuntimeError):
-    """A run stopped by a failure it cannot go on through (its recording failed, its rig node was lost), with what
-    it measured so far (``payload``, to report as an interrupted run's) and the line that says why (``message``).
-    A RuntimeError: a caller that does not report the payload still prints the line (exit 1)."""
+class Aborted(StoppedRun, RuntimeError):
+    """A run stopped by a failure it cannot go on through (its recording failed, its rig node was lost). A
+    RuntimeError too: a caller that does not report the payload still prints the line (exit 1)."""
 
-    def __init__(self, payload: dict, message: str) -> None:
-        super().__init__(message)
-        self.payload, self.message = payload, message
+    @property
+    def exit_status(self) -> int:
+        """1: the run failed."""
+        return 1
 
 
 def module_command(module: str, *args: str) -> list[str]:

@@ -57,3 +57,22 @@ def test_a_stopped_ros_program_keeps_taking_signals_as_stop_requests_until_it_ex
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and "exited on its own" in out.stdout, (out.returncode, out.stderr[-2000:])
+
+
+def test_a_stopped_run_carries_its_exit_status_and_what_catches_it():
+    """A signal's stop (Interrupted) passes any ``except Exception`` and exits 128 + the signal; a failure's (Aborted)
+    is an error a caller that does not report its payload still catches, and exits 1. One ``except StoppedRun``
+    reports both."""
+    from panel_rig.processes import Aborted, Interrupted, StoppedRun
+
+    caught = []
+    for stop in (Interrupted(signal.SIGTERM, {"points": 2}, "stopped"), Aborted({"points": 1}, "disk full")):
+        try:
+            try:
+                raise stop
+            except Exception as exc:  # noqa: BLE001 - what a generic error handler on the way would do
+                caught.append(("error", exc.exit_status))
+                raise
+        except StoppedRun as stopped:
+            caught.append((stopped.message, stopped.payload["points"], stopped.exit_status))
+    assert caught == [("stopped", 2, 143), ("error", 1), ("disk full", 1, 1)]
