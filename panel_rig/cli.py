@@ -370,7 +370,9 @@ def cmd_lco(args: argparse.Namespace) -> int:
 def lco_warnings(payload: dict[str, Any]) -> list[str]:
     """What the numbers of an lco run do not say themselves: a tip past the panel's length (the cubic-truncated
     variants above ~1.05 U_f: `full` at 10.84 m/s read RMS 0.32-0.54 with a peak of 1.28 L, from 0.1 % changes of
-    the airspeed or the duration), and a response that never settled (its RMS and frequency are a transient's)."""
+    the airspeed or the duration), and a response that never settled (its RMS and frequency are a transient's; in
+    the tunnel below flutter, the turbulence's random response). A panel that stayed at rest (a quiet tunnel below
+    flutter) gets none: its RMS 0 says it."""
     if payload.get("diverged"):
         return []
     out = []
@@ -379,10 +381,24 @@ def lco_warnings(payload: dict[str, Any]) -> list[str]:
         out.append(f"warning: the tip reached |w/L| = {peak:.3g}, past the panel's own length, where no inextensible "
                    "panel goes: the cubic-truncated model is outside its range (docs/validation.md section 4; "
                    "--variant exact holds it)")
-    if payload.get("steady_after_s") is None:
+    if payload.get("steady_after_s") is None and payload.get("rms_tip_w_over_L"):
+        what = ("a random response to the turbulence (below flutter), a growing or an irregular one"
+                if payload.get("turbulence_intensity") else "a transient or an irregular response")
         out.append("warning: no steady state within the run (the RMS of the last 1 s windows still changes): the "
-                   "RMS and frequency are of a transient or an irregular response, not of a limit cycle")
+                   f"RMS and frequency are of {what}, not of a limit cycle")
     return out
+
+
+def lco_sweep_warning(results: Sequence[Any]) -> str | None:
+    """One line naming the airspeeds of a sweep whose tip passed |w/L| = 1 without diverging (a single `lco` run
+    warns of each; the sweep's table gave their RMS of 0.69-0.80 without a word)."""
+    past = [r for r in results if not r.diverged and r.peak_tip_w_over_L > 1.0]
+    if not past:
+        return None
+    speeds = ", ".join(f"{r.airspeed_mps:g}" for r in past)
+    return (f"warning: at {speeds} m/s the tip passed |w/L| = 1 (up to {max(r.peak_tip_w_over_L for r in past):.3g}), "
+            "past the panel's own length: the cubic-truncated model is outside its range there (docs/validation.md "
+            "section 4; --variant exact holds it)")
 
 
 def _key_value_table(payload: dict[str, Any]) -> str:
@@ -418,9 +434,24 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
         from panel_rig.analysis.plots import plot_lco_sweep
 
         payload["plot"] = str(plot_lco_sweep(args.plot, speeds, res, "LCO vs airspeed (Fig. 8)"))
-    _emit(args, payload, lambda: "U (m/s)   RMS w/L    f (Hz)  diverged\n" + "\n".join(
-        f"{r.airspeed_mps:7.2f}  {r.rms_tip_w_over_L:8.4f}  {r.dominant_frequency_hz:8.2f}  {r.diverged}" for r in res))
+    past = lco_sweep_warning(res)
+    if past:
+        _note(past)
+    _emit(args, payload, lambda: _lco_sweep_table(res))
     return 0
+
+
+def _lco_sweep_table(results: Sequence[Any]) -> str:
+    """The sweep's text table; a diverged run has no metrics ("-", and when it diverged), not nan."""
+    def cell(v: float | None, fmt: str, width: int) -> str:
+        return f"{'-':>{width}}" if v is None or not np.isfinite(v) else format(v, fmt)
+
+    lines = ["U (m/s)   RMS w/L  peak w/L    f (Hz)  diverged"]
+    for r in results:
+        gone = f"at {r.diverged_at_s:.2f} s" if r.diverged and r.diverged_at_s is not None else str(r.diverged)
+        lines.append(f"{r.airspeed_mps:7.2f}  {cell(r.rms_tip_w_over_L, '8.4f', 8)}  "
+                     f"{cell(r.peak_tip_w_over_L, '8.4f', 8)}  {cell(r.dominant_frequency_hz, '8.2f', 8)}  {gone}")
+    return "\n".join(lines)
 
 
 def cmd_forced(args: argparse.Namespace) -> int:

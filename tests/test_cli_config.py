@@ -444,10 +444,41 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
 
     settled = {"peak_tip_w_over_L": 0.118, "steady_after_s": 10.0, "diverged": False}
     assert lco_warnings(settled) == []
-    wild = lco_warnings({"peak_tip_w_over_L": 1.28, "steady_after_s": None, "diverged": False})
+    wild = lco_warnings({"peak_tip_w_over_L": 1.28, "rms_tip_w_over_L": 0.337, "steady_after_s": None,
+                         "diverged": False})
     assert len(wild) == 2 and "|w/L| = 1.28, past the panel's own length" in wild[0]
-    assert "no steady state" in wild[1]
+    assert "no steady state" in wild[1] and "of a transient or an irregular response" in wild[1]
     assert lco_warnings({"peak_tip_w_over_L": 2.1, "steady_after_s": None, "diverged": True}) == []
+
+
+def test_lco_in_the_tunnel_below_flutter_is_called_a_random_response_and_a_panel_at_rest_gets_no_warning():
+    """An audit: `lco ... --turbulence-intensity 0` (RMS 0: the panel stays at rest) warned "no steady state ...
+    not of a limit cycle", and every turbulent run below flutter got the transient's wording."""
+    from panel_rig.cli import lco_warnings
+
+    at_rest = {"peak_tip_w_over_L": 0.0, "rms_tip_w_over_L": 0.0, "steady_after_s": None, "diverged": False,
+               "turbulence_intensity": 0.0}
+    assert lco_warnings(at_rest) == []
+    random = lco_warnings({**at_rest, "peak_tip_w_over_L": 2e-4, "rms_tip_w_over_L": 5e-5,
+                           "turbulence_intensity": 0.001})
+    assert len(random) == 1 and "a random response to the turbulence (below flutter)" in random[0]
+
+
+def test_lco_sweep_warns_of_tips_past_the_panel_s_length_and_prints_no_nan():
+    """`lco-sweep` gave RMS 0.69-0.80 for `full` points whose tips passed |w/L| = 1 without the warning a single
+    `lco` gives, and its table printed nan for diverged runs."""
+    from panel_rig.analysis.lco import LCOResult
+    from panel_rig.cli import _lco_sweep_table, lco_sweep_warning
+
+    nan = float("nan")
+    res = [LCOResult(10.5, 0.1, 0.3, 22.5, 5.0, False), LCOResult(11.0, 0.48, 1.24, 17.5, None, False),
+           LCOResult(11.85, 0.56, 1.32, 18.0, None, False), LCOResult(12.7, nan, nan, nan, None, True, 8.39)]
+    line = lco_sweep_warning(res)
+    assert line.startswith("warning: at 11, 11.85 m/s the tip passed |w/L| = 1 (up to 1.32)"), line
+    assert lco_sweep_warning(res[:1] + res[3:]) is None
+    table = _lco_sweep_table(res)
+    assert "nan" not in table and table.splitlines()[-1].split() == ["12.70", "-", "-", "-", "at", "8.39", "s"]
+    assert table.splitlines()[2].split() == ["11.00", "0.4800", "1.2400", "17.50", "False"]
 
 
 def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
