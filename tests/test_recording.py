@@ -464,7 +464,7 @@ def test_close_from_a_signal_at_the_lock_s_edges_finishes_the_bag(tmp_path: Path
 def test_recover_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main_bag_recover(str(tmp_path / "nope")) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not a bag directory" in err[0]
+    assert len(err) == 1 and "not a bag directory: it does not exist" in err[0]
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "junk_0.mcap").write_bytes(b"this is not an mcap file")
@@ -789,3 +789,20 @@ def test_a_bag_that_cannot_be_finished_closes_its_file_and_releases_its_lock(tmp
     from panel_rig.recording.lock import lock_holder
 
     assert writer._stream.closed and lock_holder(bag_dir) is None  # `bag recover` may take it
+
+
+def test_a_bag_s_mcap_file_given_for_its_directory_names_the_directory(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """`panel-rig analyze bags/x/x_0.mcap` said only "... is not a bag directory"; it now names the directory."""
+    import subprocess
+    import sys
+
+    bag = tmp_path / "run"
+    bag.mkdir()
+    (bag / "run_0.mcap").write_bytes(b"")
+    assert main_bag_recover(str(bag / "run_0.mcap")) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"is not a bag directory: it is a bag's MCAP file; give the directory that holds it ({bag})")
+    out = subprocess.run([sys.executable, "-m", "panel_rig.cli", "analyze", str(bag / "run_0.mcap")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and f"give the directory that holds it ({bag})" in out.stderr, out.stderr

@@ -24,13 +24,26 @@ from panel_rig.recording.metadata import METADATA_FILE, read_metadata
 def find_mcap(bag_dir: Path) -> Path:
     """The bag's MCAP file: from metadata.yaml if present, else the single `*.mcap` in the dir."""
     bag_dir = Path(bag_dir)
-    if not bag_dir.is_dir():
-        raise RecordingError(f"{bag_dir} is not a bag directory")
+    require_bag_dir(bag_dir)
     if (bag_dir / METADATA_FILE).is_file():
         files = read_metadata(bag_dir).get("relative_file_paths") or []
         if isinstance(files, list) and files and isinstance(files[0], str) and (bag_dir / files[0]).is_file():
             return bag_dir / files[0]
     return single_mcap(bag_dir)
+
+
+def require_bag_dir(bag_dir: Path) -> None:
+    """Raise RecordingError unless ``bag_dir`` is a directory, saying what it is instead: a bag's own .mcap file
+    (`analyze bags/x/x_0.mcap`) names the directory to give, a missing path says so."""
+    bag_dir = Path(bag_dir)
+    if bag_dir.is_dir():
+        return
+    if not bag_dir.exists():
+        raise RecordingError(f"{bag_dir} is not a bag directory: it does not exist")
+    if bag_dir.suffix == ".mcap":
+        raise RecordingError(f"{bag_dir} is not a bag directory: it is a bag's MCAP file; give the directory that "
+                             f"holds it ({bag_dir.parent})")
+    raise RecordingError(f"{bag_dir} is not a bag directory: it is a file")
 
 
 def single_mcap(bag_dir: Path) -> Path:

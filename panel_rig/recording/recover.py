@@ -36,7 +36,7 @@ from panel_rig.recording.metadata import (
     dump_metadata,
     write_metadata,
 )
-from panel_rig.recording.reader import find_mcap, single_mcap
+from panel_rig.recording.reader import find_mcap, require_bag_dir, single_mcap
 from panel_rig.recording.writer import (
     CHUNK_SIZE_BYTES,
     LIBRARY,
@@ -247,8 +247,7 @@ def recover_bag(bag_dir: Path) -> RecoverReport:
     metadata.yaml is kept as metadata.yaml.broken and rebuilt; a partial `<file>.recovering` left by an
     interrupted recover is removed; this run's own partial output is removed if it fails or is interrupted."""
     bag_dir = Path(bag_dir)
-    if not bag_dir.is_dir():
-        raise RecordingError(f"{bag_dir} is not a bag directory")
+    require_bag_dir(bag_dir)
     lock = _lock(bag_dir)
     try:
         return _recover_locked(bag_dir)
@@ -339,9 +338,6 @@ def _summary_from_scan(scan: McapScan, file_name: str) -> BagSummary:
 def main_bag_recover(path: str) -> int:
     """CLI: `panel-rig bag recover BAG`. 0 ok, 2 bad input (one stderr line), 1 write failure."""
     bag_dir = Path(path)
-    if not bag_dir.is_dir():
-        print(f"panel-rig bag recover: {path}: not a bag directory", file=sys.stderr)
-        return 2
     try:
         report = recover_bag(bag_dir)
     except RecordingError as exc:
