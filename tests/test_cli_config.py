@@ -83,6 +83,8 @@ def test_flutter_plot(tmp_path):
     # a value out of range: the node's logger and the command each printed it (the first with the name repeated)
     (["run", "--ros-args", "-p", "publish_rate_hz:=-5"], "invalid parameters: publish_rate_hz: Invalid parameter"),
     (["run", "--ros-args", "-r", "__ns:=/rig/"], "must not end with a '/'"),
+    # the node's "[INFO] physics parameters given" line came before this error, as if the node were starting
+    (["run", "--ros-args", "-p", "model.variant:=bogus"], "invalid node parameters: model.variant: must be one of"),
     (["control", "--ros-args", "-p"], "bad --ros-args"),
     (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),
     (["operate", "--profile", "config/staircase.yaml", "--timeout", "nan"], "--timeout"),  # never timed out

@@ -202,9 +202,6 @@ class RigNode(Node):
         unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})
         if unknown:
             self.get_logger().warning(f"ignoring unknown parameters: {', '.join(unknown)}")
-        self.get_logger().info(
-            f"physics parameters given: {len(set(overrides) & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
-        )
         node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
         problems = check_node_params(node_values)
         if problems:
@@ -219,6 +216,10 @@ class RigNode(Node):
         problem = publish_rate_problem(node_values["publish_rate_hz"], cfg.dt_s)
         if problem:
             raise StartupError(f"invalid node parameters: {problem}")
+        # said once the parameters are taken: before a start-up error it read as if the node were starting
+        self.get_logger().info(
+            f"physics parameters given: {len(set(overrides) & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
+        )
         if node_values["safety.max_tip_w_over_L"] >= cfg.max_tip_w_over_L:
             self.get_logger().warning(
                 f"safety.max_tip_w_over_L = {node_values['safety.max_tip_w_over_L']:g} is not below the "
