@@ -241,6 +241,14 @@ MAX_GAPS_SHOWN = 10  # gaps listed in the table (a line of thousands was 80 kB)
 HELD_DEFLECTION_W_OVER_L = 1e-4  # a plateau's mean tip w/L named under the table above this (and above its RMS)
 
 
+def _rate(plateau: dict[str, Any]) -> str:
+    """A plateau's growth rate for the table: "-" for a stationary or quiet one, which has no measured rate (its
+    envelope's drift; the JSON keeps it), and no '-0.000'."""
+    if plateau["status"] in ("stationary", "quiet") or plateau.get("growth_rate_per_s") is None:
+        return "-"
+    return f"{round(plateau['growth_rate_per_s'], 3) + 0.0:.3f}"  # + 0.0: no '-0.000'
+
+
 def format_table(result: dict[str, Any]) -> str:
     """Human-readable plateau table and onset lines of an `analyze_bag` result."""
     from panel_rig.analysis.flutter_test import prediction_text
@@ -269,7 +277,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
             f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {_hz(p['dominant_frequency_hz']):>6} "
-            f"{round(p['growth_rate_per_s'], 3) + 0.0:>8.3f} {p['status']}"  # + 0.0: no '-0.000'
+            f"{_rate(p):>8} {p['status']}"
         )
     for p in result["plateaus"]:  # a force held on the shaker: the table's RMS is the motion about the deflection
         mean = p.get("mean_tip_w_over_L") or 0.0

@@ -925,8 +925,9 @@ def test_a_tap_s_decay_is_fitted_above_its_floor_and_apart_from_faster_modes(rat
     assert np.mean(plain) > 0.6 * sigma
 
 
-def test_a_rate_that_rounds_to_zero_has_no_minus_sign() -> None:
-    """A stationary plateau's fitted rate of -0.0001 1/s printed as '-0.000' in the table."""
+def test_a_rate_that_rounds_to_zero_has_no_minus_sign_and_a_stationary_plateau_has_none() -> None:
+    """A stationary plateau's fitted rate of -0.0001 1/s printed as '-0.000' in the table; a stationary plateau has
+    no measured rate (an audit read '0.000' and '0.001' as rates), so it reads '-'; a decay's rounds without a sign."""
     from panel_rig.analysis.bag_analysis import estimate_onset
     from panel_rig.analyze_cli import format_table
 
@@ -936,7 +937,10 @@ def test_a_rate_that_rounds_to_zero_has_no_minus_sign() -> None:
     result = {"bag": "b", "duration_s": 10.0, "samples": 5000, "panel_length_m": 0.27, "panel_length_source": "bag",
               "plateaus": [plateau], "onset": estimate_onset([plateau])}
     row = next(line for line in format_table(result).splitlines() if line.endswith("stationary"))
-    assert " 0.000 stationary" in row and "-0.000" not in row, row
+    assert row.split()[-2:] == ["-", "stationary"], row
+    decay = {**plateau, "status": "decaying"}
+    row = next(line for line in format_table({**result, "plateaus": [decay]}).splitlines() if line.endswith("decaying"))
+    assert " 0.000 decaying" in row and "-0.000" not in row, row
 
 
 @pytest.mark.parametrize("n", [10, 27, 28, 60])
