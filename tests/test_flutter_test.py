@@ -75,6 +75,10 @@ def test_a_quiet_tunnel_s_test_stops_at_its_first_point_and_exits_1(tmp_path, ca
     assert out["stop_reason"].startswith("flutter mode not identified at ")
     assert captured.err.strip().splitlines()[-1] == (
         f"panel-rig flutter-test: stopped without clearance: {out['stop_reason']}")
+    from panel_rig.flutter_cli import format_flutter_test
+
+    row = format_flutter_test(out).splitlines()[1]  # the table named the method of a point it did not identify
+    assert row.split()[2:5] == ["-", "-", "-"] and row.endswith("- (ssi-cov: not identified)"), row
 
 
 def test_tap_start_is_the_first_sample_after_the_force():
