@@ -367,6 +367,11 @@ def cmd_lco(args: argparse.Namespace) -> int:
     return 0
 
 
+#: what a tip past |w/L| = 1 means for the run (lco's and lco-sweep's warnings)
+OUTSIDE_RANGE = ("the cubic-truncated model is outside its range (docs/validation.md section 4; --variant exact "
+                 "holds it)")
+
+
 def lco_warnings(payload: dict[str, Any]) -> list[str]:
     """What the numbers of an lco run do not say themselves: a tip past the panel's length (the cubic-truncated
     variants above ~1.05 U_f: `full` at 10.84 m/s read RMS 0.32-0.54 with a peak of 1.28 L, from 0.1 % changes of
@@ -379,8 +384,7 @@ def lco_warnings(payload: dict[str, Any]) -> list[str]:
     peak = payload.get("peak_tip_w_over_L")
     if peak is not None and peak > 1.0:
         out.append(f"warning: the tip reached |w/L| = {peak:.3g}, past the panel's own length, where no inextensible "
-                   "panel goes: the cubic-truncated model is outside its range (docs/validation.md section 4; "
-                   "--variant exact holds it)")
+                   f"panel goes: {OUTSIDE_RANGE}")
     if payload.get("steady_after_s") is None and payload.get("rms_tip_w_over_L"):
         what = ("a random response to the turbulence (below flutter), a growing or an irregular one"
                 if payload.get("turbulence_intensity") else "a transient or an irregular response")
@@ -397,8 +401,7 @@ def lco_sweep_warning(results: Sequence[Any]) -> str | None:
         return None
     speeds = ", ".join(f"{r.airspeed_mps:g}" for r in past)
     return (f"warning: at {speeds} m/s the tip passed |w/L| = 1 (up to {max(r.peak_tip_w_over_L for r in past):.3g}), "
-            "past the panel's own length: the cubic-truncated model is outside its range there (docs/validation.md "
-            "section 4; --variant exact holds it)")
+            f"past the panel's own length: {OUTSIDE_RANGE.replace('its range', 'its range there')}")
 
 
 def _key_value_table(payload: dict[str, Any]) -> str:

@@ -377,6 +377,11 @@ def recording_failed_message(failure: Exception, n_points: int, time_s: float, b
             "written")
 
 
+def _method_cell(point: dict[str, Any]) -> str:
+    """A test point's method column: its name, or for a point whose flutter mode it did not identify, saying so."""
+    return point["method"] if point["damping_ratio"] is not None else f"- ({point['method']}: not identified)"
+
+
 def format_flutter_test(out: dict[str, Any]) -> str:
     from panel_rig.analysis.flutter_test import prediction_text
 
@@ -389,9 +394,7 @@ def format_flutter_test(out: dict[str, Any]) -> str:
         ci = p["damping_ci"]
         ci_s = "-" if ci is None else f"[{ci[0]:.4f}, {ci[1]:.4f}]"
         lines.append(f"{k:>2} {p['airspeed_mps']:>7.3f} {num(p['frequency_hz'], '7.3f')} "
-                     f"{num(p['damping_ratio'], '8.4f')} {ci_s:>19} "
-                     # a point whose flutter mode was not identified: the method found nothing
-                     f"{p['method'] if p['damping_ratio'] is not None else '- (' + p['method'] + ': not identified)'}")
+                     f"{num(p['damping_ratio'], '8.4f')} {ci_s:>19} {_method_cell(p)}")
     pred = prediction_text(out["predicted_flutter_speed_mps"], out["predicted_flutter_speed_ci_mps"],
                            out["prediction_method"])
     lines.append(f"{pred}; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
