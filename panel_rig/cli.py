@@ -343,8 +343,9 @@ def cmd_lco(args: argparse.Namespace) -> int:
         res = (diverged_result(args.airspeed, run.aborted_at_s) if run.aborted_at_s is not None
                else lco_metrics(tip, run.dt_s, args.airspeed))
         payload = res.as_dict()
+        # the rig's stop (the tip at |w/L| = 1 or the wall) is `diverged` too, and says which limit it was
         payload.update(turbulence_intensity=cfg.turbulence_intensity, turbulence_spectrum=cfg.turbulence_spectrum,
-                       seed=cfg.turbulence_seed)
+                       seed=cfg.turbulence_seed, abort_reason=run.abort_reason)
     else:  # the paper's computation: a quiet tunnel, a small initial 2nd-mode deflection starts the flutter
         res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
                               keep=bool(args.plot), progress=Progress("lco"))

@@ -386,7 +386,9 @@ def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():
     out = run("lco", "--airspeed", "20", "--duration", "3", "--seed", "2", "--json")
     assert out.returncode == 0, out.stderr
     said = float(out.stderr.split("rig aborted at t = ")[1].split(" s")[0])
-    assert json.loads(out.stdout)["diverged_at_s"] == pytest.approx(said, abs=1e-3) and said < 1.0
+    res = json.loads(out.stdout)
+    assert res["diverged_at_s"] == pytest.approx(said, abs=1e-3) and said < 1.0
+    assert res["abort_reason"].startswith("tip |w/L| = ") and res["abort_reason"] in out.stderr  # which limit
 
 
 def test_a_panel_that_does_not_move_has_no_frequency():
@@ -395,6 +397,7 @@ def test_a_panel_that_does_not_move_has_no_frequency():
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
     assert res["rms_tip_w_over_L"] == 0.0 and res["dominant_frequency_hz"] is None, res
+    assert res["abort_reason"] is None and res["diverged"] is False
 
 
 def test_static_says_when_the_modal_series_is_truncated():

@@ -14,12 +14,14 @@ from panel_rig.rig.safety import SafetyLimits
 
 @dataclass(frozen=True)
 class TunnelRun:
-    """Per physics step: the model's tip w/L (truth); per sample the sensor's tip (m); where the run stopped."""
+    """Per physics step: the model's tip w/L (truth); per sample the sensor's tip (m); where and why the rig
+    stopped the run (None: it ran to its end)."""
 
     dt_s: float
     tip_w_over_L: np.ndarray
     measured_tip_m: np.ndarray
     aborted_at_s: float | None
+    abort_reason: str | None = None
 
 
 def run_tunnel(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant: str = "full", aero: str = "rom",
@@ -50,9 +52,10 @@ def run_tunnel(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant
             progress(done / n_total)
     tip = np.concatenate(tips) if tips else np.zeros(0)
     measured = np.concatenate(meas) if meas else np.zeros(0)
-    aborted = None
+    aborted, reason = None, None
     if rig.state != RUNNING:  # the abort's own time, not the chunk's end; the series stop there too (the block
         aborted = float(rig.abort_time_s)  # runs on to its end after an abort)
         keep = int(round(aborted / rig.dt_s))
         tip, measured = tip[:keep], measured[:keep]
-    return TunnelRun(rig.dt_s, tip, measured, aborted)
+        reason = rig.abort_reason
+    return TunnelRun(rig.dt_s, tip, measured, aborted, reason)
