@@ -14,3 +14,11 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}", file=sys.stderr)
         raise SystemExit(2)
+
+
+def study_parser(doc: str | None, prog: str) -> OneLineParser:
+    """The parser of a ``python -m panel_rig.analysis.<study>`` script: its docstring as the help, so ``--help``
+    describes the study (minutes of computation) instead of starting it, and an unknown option is one line."""
+    lines = (doc or "").strip().splitlines()
+    return OneLineParser(prog=f"python -m {prog}", description=lines[0] if lines else None,
+                         epilog="\n".join(lines[1:]).strip() or None, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -80,3 +80,15 @@ def test_a_program_s_unknown_option_is_one_line(program, capsys):
         cli.main([program, "--bogus"])
     err = capsys.readouterr().err.strip()
     assert done.value.code == 2 and err.startswith(f"panel-rig {program}: error: ") and "\n" not in err, err
+
+
+@pytest.mark.parametrize("study", ["flutter_study", "elastica_study", "sensitivity", "exact_study", "scheme_study"])
+def test_a_study_script_s_help_describes_it_instead_of_running_it(study):
+    """`python -m panel_rig.analysis.flutter_study --help` started its 2-6 minutes of computation (no parser)."""
+    module = f"panel_rig.analysis.{study}"
+    shown = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=120)
+    assert shown.returncode == 0 and shown.stdout.startswith(f"usage: python -m {module}"), shown.stderr
+    assert "|---" not in shown.stdout  # no table: nothing was computed
+    wrong = subprocess.run([sys.executable, "-m", module, "--bogus"], capture_output=True, text=True, timeout=120)
+    assert wrong.returncode == 2 and wrong.stdout == ""
+    assert wrong.stderr == f"python -m {module}: error: unrecognized arguments: --bogus\n"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from panel_rig.argparsing import study_parser
 from panel_rig.model.elastica import static_tip_load, static_tip_moment
 
 #: Bisshopp & Drucker (1945): P L^2/EI -> (tip w/L, axial shortening u/L)
@@ -52,6 +53,7 @@ def moment_table(mus=(0.5, 1.0, 2.0), modes=(3, 6, 12)) -> str:
 
 
 if __name__ == "__main__":
+    study_parser(__doc__, "panel_rig.analysis.elastica_study").parse_args()
     print(dead_load_table())
     print()
     print(moment_table())

@@ -7,7 +7,6 @@ and exact_study.json and prints the markdown tables of docs/validation.md (secti
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Callable
 
@@ -16,6 +15,7 @@ import numpy as np
 from panel_rig import jsonio
 from panel_rig.analysis.flutter import find_flutter
 from panel_rig.analysis.lco import LCOResult, lco_metrics, lco_sweep
+from panel_rig.argparsing import study_parser
 from panel_rig.config import PanelConfig, load_config
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.stepper import DivergenceError, Stepper
@@ -125,7 +125,7 @@ def plot_hysteresis(path: Path, hyst: dict[str, dict]) -> Path:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = study_parser(__doc__, "panel_rig.analysis.exact_study")
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--dwell", type=float, default=15.0)

@@ -1,7 +1,8 @@
 """The measurements behind docs/validation.md, section "Flutter-test methods":
-``python -m panel_rig.analysis.flutter_study`` prints its tables (markdown, ~1-2 min on 2 cores).
+``python -m panel_rig.analysis.flutter_study`` prints its tables (markdown, ~45 s on 2 cores).
 
-Stand-ins until the turbulence and sensor model (issue 9) lands: turbulence = band-limited (0-100 Hz) white
+Stand-ins (this study came before the rig's turbulence and sensor model, issue 9; section 10 of docs/validation.md
+measures the methods on those): turbulence = band-limited (0-100 Hz) white
 trailing-edge force on the stepper; sensor = white noise of 5 um RMS on the tip (a lab laser displacement sensor),
 tip ~0.3 mm RMS under turbulence and ~0.5 mm peak after a tap (the linear stepper's output is scaled to these
 levels, exact by linearity).
@@ -20,6 +21,7 @@ from panel_rig.analysis.flutter_margin import (
 )
 from panel_rig.analysis.identification import identify_free_decay, identify_ssi
 from panel_rig.analysis.vg import model_flutter_speed, pole_from_modal, vg_diagram
+from panel_rig.argparsing import study_parser
 from panel_rig.config import load_config
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.stepper import Stepper
@@ -74,8 +76,9 @@ def synthetic_table() -> str:
             fe = max(abs(e.frequency_hz / f - 1) for e in got)
             ze = np.array([e.damping_ratio / z - 1 for e in got])
             se = np.mean([e.damping_se / z for e in got])
+            scatter = f"{ze.std(ddof=1):.1%}" if ze.size > 1 else "—"  # one record has no scatter
             lines.append(f"| SSI-cov, {T:.0f} s, {len(got)}/8 seeds | {f} Hz, {z} | {fe:.2%} | {ze.mean():+.1%} | "
-                         f"{ze.std(ddof=1):.1%} | {se:.1%} |")
+                         f"{scatter} | {se:.1%} |")
     taps = [identify_free_decay(_decay(modes, np.random.default_rng(200 + k)), 1 / 2048,
                                 [(3.0, 9.0), (20.0, 26.0), (60.0, 80.0)], max_rate_hz=400) for k in range(8)]
     for m, (f, z) in enumerate(modes):
@@ -152,7 +155,8 @@ def stepper_tables() -> tuple[str, str, str]:
     return "\n".join(id_lines), "\n".join(pred_lines), ""
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    study_parser(__doc__, "panel_rig.analysis.flutter_study").parse_args(argv)
     print("### Synthetic signals\n")
     print(synthetic_table())
     print("\n### Predictors on the model's exact poles (points at 0.5-0.9 U_f)\n")

@@ -8,7 +8,6 @@ and the energy error of the free structure per scheme.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib
@@ -22,6 +21,7 @@ from panel_rig import jsonio
 from panel_rig.analysis.flutter import find_flutter  # noqa: E402
 from panel_rig.analysis.lco import run_lco  # noqa: E402
 from panel_rig.analysis.signals import window_rms  # noqa: E402
+from panel_rig.argparsing import study_parser
 from panel_rig.config import PanelConfig, load_config  # noqa: E402
 from panel_rig.model.aeroelastic import AeroelasticModel  # noqa: E402
 from panel_rig.model.options import SCHEMES  # noqa: E402
@@ -117,6 +117,6 @@ def study(out: Path) -> dict:
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = study_parser(__doc__, "panel_rig.analysis.scheme_study")
     ap.add_argument("--out", default="docs/figures")
     print(jsonio.dumps(study(Path(ap.parse_args().out)), indent=1))

@@ -9,6 +9,7 @@ import sys
 import time
 
 from panel_rig.analysis.flutter import find_flutter
+from panel_rig.argparsing import study_parser
 from panel_rig.config import PanelConfig, load_config
 from panel_rig.model.aeroelastic import AeroelasticModel
 
@@ -62,5 +63,6 @@ def markdown(rows: list[dict], paper_speed: float = 12.5) -> str:
 
 
 if __name__ == "__main__":
+    study_parser(__doc__, "panel_rig.analysis.sensitivity").parse_args()
     print(markdown(measure()))
     sys.exit(0)
