@@ -763,7 +763,8 @@ def build_parser() -> argparse.ArgumentParser:
         if aero:
             p.add_argument("--aero", choices=RIG_AERO_MODELS, default=DEFAULT_AERO,
                            help="aerodynamics: the reduced-order model or the full lattice (default: %(default)s)")
-        p.add_argument("--plot", metavar="FILE.png")
+        p.add_argument("--plot", metavar="FILE.png", help="also draw the result in a PNG (lco: the tip w/L history; "
+                       "lco-sweep: RMS and frequency against airspeed; forced: the response curve)")
 
     p = sub.add_parser("lco", help="limit-cycle run at one airspeed (Figs. 4, 6, 7)")
     _common(p)
@@ -780,7 +781,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("lco-sweep", help="LCO amplitude and frequency versus airspeed (Fig. 8)")
     _common(p)
     model_opts(p)
-    p.add_argument("--airspeeds", required=True, metavar="START:STOP:STEP")
+    p.add_argument("--airspeeds", required=True, metavar="START:STOP:STEP",
+                   help="m/s, STOP included (e.g. 10:14:0.5); independent runs from the same small disturbance")
     p.add_argument("--duration", type=float, default=30.0, metavar="T",
                    help="simulated seconds per airspeed (default: %(default)s)")
     p.set_defaults(func=cmd_lco_sweep)
@@ -816,8 +818,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("paper", help="reproduce Figs. 2-8 with report.md and results.json")
     _common(p)
-    p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--sweep-duration", type=float, default=30.0, help="seconds per Fig. 8 airspeed (default: %(default)s)")
+    p.add_argument("--out", required=True, metavar="DIR", help="where report.md, results.json and the figures go "
+                   "(made if missing)")
+    p.add_argument("--sweep-duration", type=float, default=30.0, metavar="T",
+                   help="simulated seconds per Fig. 8 airspeed (default: %(default)s)")
     p.set_defaults(func=cmd_paper)
 
     p = sub.add_parser("study", help="parameter study on Dask: flutter map, uncertainty, bifurcation (docs/studies.md)")

@@ -521,3 +521,23 @@ def test_static_text_has_no_nan_angle():
     out = run("static", "--tip-load-parameter", "5", "--variant", "full")
     assert out.returncode == 0 and "nan" not in out.stdout, out.stdout
     assert "tip angle, rad            -   (none: the cubic slope exceeds 1" in out.stdout
+
+
+def test_every_option_of_every_subcommand_says_what_it_takes():
+    """`panel-rig lco --help` listed `--plot FILE.png` and `lco-sweep` `--airspeeds START:STOP:STEP` with no word on
+    what they do (or that STOP is included)."""
+    import argparse
+
+    from panel_rig.cli import build_parser
+
+    def silent(parser: argparse.ArgumentParser, name: str) -> list[str]:
+        out = []
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub, p in action.choices.items():
+                    out += silent(p, f"{name} {sub}")
+            elif action.option_strings and not action.help:
+                out.append(f"{name} {action.option_strings[0]}")
+        return out
+
+    assert silent(build_parser(), "panel-rig") == []
