@@ -85,6 +85,8 @@ def test_flutter_plot(tmp_path):
     (["run", "--ros-args", "-r", "__ns:=/rig/"], "must not end with a '/'"),
     # the node's "[INFO] physics parameters given" line came before this error, as if the node were starting
     (["run", "--ros-args", "-p", "model.variant:=bogus"], "invalid node parameters: model.variant: must be one of"),
+    # a recording that cannot be opened: the INFO line came first here too (it is said once the sinks are up)
+    (["run", "--ros-args", "-p", "record:=true", "-p", "bag_dir:=/proc/no_such_dir"], "/proc/no_such_dir"),
     (["control", "--ros-args", "-p"], "bad --ros-args"),
     (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),
     (["operate", "--profile", "config/staircase.yaml", "--timeout", "nan"], "--timeout"),  # never timed out

@@ -117,6 +117,10 @@ class RigNode(Node):
         self.recording = Recording(self.get_logger())
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
+        # said once the model and the sinks are up: before a start-up error it read as if the node were starting
+        self.get_logger().info(
+            f"physics parameters given: {self._physics_given} of {len(SCHEMA)} (others: paper defaults)"
+        )
 
         # readings out (sensor-data QoS), commands in (reliable)
         sensor = qos_profile_sensor_data
@@ -216,10 +220,7 @@ class RigNode(Node):
         problem = publish_rate_problem(node_values["publish_rate_hz"], cfg.dt_s)
         if problem:
             raise StartupError(f"invalid node parameters: {problem}")
-        # said once the parameters are taken: before a start-up error it read as if the node were starting
-        self.get_logger().info(
-            f"physics parameters given: {len(set(overrides) & set(SCHEMA))} of {len(SCHEMA)} (others: paper defaults)"
-        )
+        self._physics_given = len(set(overrides) & set(SCHEMA))  # logged once the node can start (see __init__)
         if node_values["safety.max_tip_w_over_L"] >= cfg.max_tip_w_over_L:
             self.get_logger().warning(
                 f"safety.max_tip_w_over_L = {node_values['safety.max_tip_w_over_L']:g} is not below the "
