@@ -337,6 +337,23 @@ def test_rejections_held_back_by_the_throttle_are_summed_up(fast_node: subproces
     raise AssertionError(f"no summary of held-back warnings: {[m.msg for m in client.got['rosout']]}")
 
 
+def test_a_burst_of_commands_reaches_the_node_whole(fast_node: subprocess.Popen, client: Client) -> None:
+    """50 commands sent back to back by a publisher with a deep enough queue: each is taken (here each refused,
+    which counts it). The node's command queue was 10 deep and a burst of 30 reached it as its last 10."""
+    burst = 50
+    deep = QoSProfile(depth=burst, reliability=ReliabilityPolicy.RELIABLE)
+    pub = client.node.create_publisher(Float64, "shaker/frequency_cmd", deep)
+    try:
+        client.wait(lambda: pub.get_subscription_count() > 0, 10.0, "the node's subscription")
+        before = int(client.next_diag()["rejected_commands"])
+        for k in range(burst):
+            pub.publish(Float64(data=1e5 + k))  # above any shaker frequency: refused and counted
+        client.wait(lambda: int(client.diag()["rejected_commands"]) >= before + burst, 10.0, f"{burst} rejections")
+        assert int(client.diag()["rejected_commands"]) == before + burst
+    finally:
+        client.node.destroy_publisher(pub)
+
+
 def test_abort_and_reset_services(fast_node: subprocess.Popen, client: Client) -> None:
     reset(client)
     client.publish("airspeed_cmd", 6.0)

@@ -56,6 +56,8 @@ from panel_rig.topics import REJECTED_SUFFIX
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: the tunnel commands in: a burst of 30 back to back reached a depth-10 queue as its last 10 (each one counts)
+COMMAND_IN_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 #: the echoes of refused commands: a burst (20 NaNs 5 ms apart) overran a depth of 10 and a monitor saw 5 of them
 REJECTED_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATEST_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -146,7 +148,7 @@ class RigNode(Node):
             "shaker/frequency_cmd": self.rig.command_frequency,
         }
         self._subs = [
-            self.create_subscription(Float64, topic, self._command_callback(topic, fn), COMMAND_QOS)
+            self.create_subscription(Float64, topic, self._command_callback(topic, fn), COMMAND_IN_QOS)
             for topic, fn in commands.items()
         ]
         self._init_control()
