@@ -28,7 +28,7 @@ WARM_STARTS = 9
 UP_LINE = re.compile(r"\[(\d+\.\d+)\] \[[\w.]*panel_rig\]: panel_rig up")
 
 
-def first_tip_s(extra_env: dict[str, str]) -> tuple[float, float]:
+def start_times_s(extra_env: dict[str, str]) -> tuple[float, float]:
     """(seconds from process start to the first tip_displacement message received by a subscriber here, seconds to
     the node's own "panel_rig up" log line): the difference is DDS discovery between the two processes."""
     import rclpy
@@ -71,11 +71,11 @@ def first_tip_s(extra_env: dict[str, str]) -> tuple[float, float]:
 def measure() -> dict[str, float]:
     out = {}
     with tempfile.TemporaryDirectory() as cache:
-        out["startup_cold_first_tip_s"] = first_tip_s({"NUMBA_CACHE_DIR": cache})[0]
-        out["startup_cold_again_same_cache_first_tip_s"] = first_tip_s({"NUMBA_CACHE_DIR": cache})[0]
-    first_tip_s({})  # make sure the default cache is filled
+        out["startup_cold_first_tip_s"] = start_times_s({"NUMBA_CACHE_DIR": cache})[0]
+        out["startup_cold_again_same_cache_first_tip_s"] = start_times_s({"NUMBA_CACHE_DIR": cache})[0]
+    start_times_s({})  # make sure the default cache is filled
     # the spread matters: some starts' first reading arrives seconds later, while the node itself was up as early
-    starts = [first_tip_s({}) for _ in range(WARM_STARTS)]
+    starts = [start_times_s({}) for _ in range(WARM_STARTS)]
     for name, values in (("first_tip", sorted(s[0] for s in starts)), ("node_up", sorted(s[1] for s in starts))):
         out[f"startup_warm_{name}_min_s"] = values[0]
         out[f"startup_warm_{name}_median_s"] = values[len(values) // 2]

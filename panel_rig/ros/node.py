@@ -56,7 +56,7 @@ from panel_rig.topics import REJECTED_SUFFIX
 NODE_NAME = "panel_rig"
 REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-#: the tunnel commands in: a burst of 30 back to back reached a depth-10 queue as its last 10 (each one counts)
+#: the tunnel commands in: a depth-10 queue lost part of a burst sent back to back (each command counts)
 COMMAND_IN_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 #: the echoes of refused commands: a burst (20 NaNs 5 ms apart) overran a depth of 10 and a monitor saw 5 of them
 REJECTED_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
