@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import selectors
 import signal
 import subprocess
 import sys
@@ -475,6 +476,38 @@ def test_invalid_parameters_exit_code_2(ros_env: dict[str, str], param: str, say
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 2
     assert says in out
+
+
+def _output_until(proc: subprocess.Popen, needle: str, timeout_s: float) -> str:
+    """The node's output up to the first line holding ``needle`` (or all of it, if it ends or ``timeout_s`` passes)."""
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline and sel.select(timeout=max(0.0, deadline - time.monotonic())):
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if needle in line:
+                break
+    return "".join(lines)
+
+
+def test_start_up_warnings_are_said_once_the_node_can_start(ros_env: dict[str, str]) -> None:
+    """An unknown parameter and a tip limit at the model's bound are still warned of on a good start, before the
+    'physics parameters given' line; they are now said once the sinks are up, so that a start that fails afterwards
+    prints its one error line alone (tests/test_cli_config.py's bad-input case with both)."""
+    proc = _start(ros_env, "no_such_param:=1", "safety.max_tip_w_over_L:=2.0")
+    try:
+        out = _output_until(proc, "panel_rig up", 120.0)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out += proc.communicate(timeout=30)[0]
+    assert "panel_rig up" in out, out[-2000:]
+    said = out.index("physics parameters given")
+    assert 0 < out.index("ignoring unknown parameters: no_such_param") < said, out[-2000:]
+    assert 0 < out.index("safety.max_tip_w_over_L = 2 is not below the model's divergence bound") < said, out[-2000:]
 
 
 @pytest.mark.parametrize("params, says", [

@@ -119,7 +119,10 @@ class RigNode(Node):
         self.recording = Recording(self.get_logger())
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
-        # said once the model and the sinks are up: before a start-up error it read as if the node were starting
+        # said once the model and the sinks are up: before a start-up error they read as if the node were starting,
+        # and a start that fails prints its one error line alone
+        for warning in self._startup_warnings:
+            self.get_logger().warning(warning)
         self.get_logger().info(
             f"physics parameters given: {self._physics_given} of {len(SCHEMA)} (others: paper defaults)"
         )
@@ -206,8 +209,9 @@ class RigNode(Node):
         if problems:
             raise StartupError("invalid parameters: " + "; ".join(problems))
         unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})
+        self._startup_warnings: list[str] = []  # logged once the node can start (see __init__)
         if unknown:
-            self.get_logger().warning(f"ignoring unknown parameters: {', '.join(unknown)}")
+            self._startup_warnings.append(f"ignoring unknown parameters: {', '.join(unknown)}")
         node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
         problems = check_node_params(node_values)
         if problems:
@@ -224,7 +228,7 @@ class RigNode(Node):
             raise StartupError(f"invalid node parameters: {problem}")
         self._physics_given = len(set(overrides) & set(SCHEMA))  # logged once the node can start (see __init__)
         if node_values["safety.max_tip_w_over_L"] >= cfg.max_tip_w_over_L:
-            self.get_logger().warning(
+            self._startup_warnings.append(
                 f"safety.max_tip_w_over_L = {node_values['safety.max_tip_w_over_L']:g} is not below the "
                 f"model's divergence bound sim.max_tip_w_over_L = {cfg.max_tip_w_over_L:g}"
             )
