@@ -9,6 +9,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["tests", "tests.*", "benchmarks"]),
+    package_data={"panel_rig.ros": ["fastdds_profile.xml"]},  # the DDS announcement period (ros/discovery.py)
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -1,5 +1,7 @@
 """Node start-up: wall time from launching ``panel-rig run`` to its first ``tip_displacement`` message (and to its
-"panel_rig up" log line, when it starts publishing: the gap between the two is DDS discovery).
+"panel_rig up" log line, when it starts publishing: the gap between the two is DDS discovery), and from starting a
+program once the node is up to its first reading (``late_client``: the usual order, an operator joining a running
+rig).
 
     python benchmarks/startup.py [--json]
 
@@ -68,6 +70,32 @@ def start_times_s(extra_env: dict[str, str]) -> tuple[float, float]:
     return got[0] - t0, (float(up.group(1)) - t0_wall if up else float("nan"))
 
 
+def late_client_times_s(n: int) -> list[float]:
+    """Seconds to the first tip reading for ``n`` programs started one after another once the node is up (the usual
+    order: the rig runs, then an operator or a subscriber joins), each a process of its own
+    (``python -m panel_rig.ros.first_reading``)."""
+    domain = random.randint(150, 199)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    panel_rig = Path(sys.executable).parent / "panel-rig"
+    times = []
+    with tempfile.TemporaryDirectory() as log_dir:
+        env["ROS_LOG_DIR"] = log_dir
+        proc = subprocess.Popen([str(panel_rig), "run", "--ros-args", "-r", "__ns:=/rig"], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            for line in proc.stdout:
+                if "panel_rig up" in line:
+                    break
+            for _ in range(n):
+                out = subprocess.run([sys.executable, "-m", "panel_rig.ros.first_reading", "--namespace", "/rig"],
+                                     env=env, capture_output=True, text=True, timeout=60, check=True)
+                times.append(float(out.stdout))
+        finally:
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=30)
+    return times
+
+
 def measure() -> dict[str, float]:
     out = {}
     with tempfile.TemporaryDirectory() as cache:
@@ -80,6 +108,10 @@ def measure() -> dict[str, float]:
         out[f"startup_warm_{name}_min_s"] = values[0]
         out[f"startup_warm_{name}_median_s"] = values[len(values) // 2]
         out[f"startup_warm_{name}_max_s"] = values[-1]
+    late = sorted(late_client_times_s(WARM_STARTS))
+    out["late_client_first_tip_min_s"] = late[0]
+    out["late_client_first_tip_median_s"] = late[len(late) // 2]
+    out["late_client_first_tip_max_s"] = late[-1]
     return out
 
 

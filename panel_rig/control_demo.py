@@ -76,9 +76,11 @@ class _Client:
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
         from std_msgs.msg import Float64
 
+        from panel_rig.ros.discovery import use_quick_announcements
         from panel_rig.ros.messages import rig_status
 
         self._rclpy, self._Float64, self._rig_status = rclpy, Float64, rig_status
+        use_quick_announcements()
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node("control_demo", namespace="/rig", context=self.ctx)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from panel_rig.ros.discovery import PROFILE
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -51,3 +53,13 @@ def test_version_is_one_number_in_setup_package_xml_and_the_cli(capsys: pytest.C
         main(["--version"])
     assert stop.value.code == 0
     assert capsys.readouterr().out.strip() == f"panel-rig {xml}" and setup == xml
+
+
+def test_the_dds_profile_is_installed_with_the_package(tmp_path: Path) -> None:
+    """The node's Fast DDS profile (panel_rig/ros/discovery.py) is package data: a built package that left it out
+    would start with Fast DDS's 3 s announcements and no word."""
+    out = subprocess.run([sys.executable, "setup.py", "-q", "build_py", "--build-lib", str(tmp_path)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    built = tmp_path / "panel_rig" / "ros" / PROFILE.name
+    assert built.read_text() == PROFILE.read_text()

@@ -225,10 +225,12 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
     from rclpy.executors import SingleThreadedExecutor
 
     from panel_rig.analysis.flutter_test import run_points
+    from panel_rig.ros.discovery import use_quick_announcements
     from panel_rig.ros.flutter_client import FlutterTestClient
 
     saved = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by the middleware at init
+    use_quick_announcements()
     ctx = Context()
     try:
         rclpy.init(context=ctx, domain_id=domain_id)

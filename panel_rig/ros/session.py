@@ -14,6 +14,7 @@ import rclpy
 from rclpy.signals import SignalHandlerOptions
 
 from panel_rig.processes import follow_parent, signals_set
+from panel_rig.ros.discovery import use_quick_announcements
 
 
 @contextmanager
@@ -25,6 +26,7 @@ def ros_session(args: Sequence[str], stop: threading.Event) -> Iterator[None]:
         faulthandler.enable()
     with signals_set(stop, restore_when_stopped=False):
         follow_parent()  # a child of a one-command session stops with it (its SIGTERM sets ``stop``)
+        use_quick_announcements()  # a program started after this one sees it within 0.5 s, not 3 s
         rclpy.init(args=list(args), signal_handler_options=SignalHandlerOptions.NO)
         try:
             yield
