@@ -403,10 +403,10 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; {margin}fluttered: {out['fluttered']}; "
                  f"stop: {out['stop_reason']}")
     # (the wall time includes the node's start: "7 s simulated in 4.9 s wall ... RTF 79.7" read as a contradiction)
-    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}; its start took {out['node_startup_wall_s']:.1f} s, "
-             f"the test {out['test_wall_s']:.1f} s: RTF {num(out['node_rtf'], '.1f')})"
+    where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}; its start took {num(out['node_startup_wall_s'], '.1f')} s, "
+             f"the test {num(out['test_wall_s'], '.1f')} s: RTF {num(out['node_rtf'], '.1f')})"
              if out.get("live") else "in-process rig")
     rerun = f"rerun: {out['rerun']}; " if out.get("rerun") else ""
-    lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {rerun}{out['simulated_s']:.0f} s "
+    lines.append(f"bag: {out['bag'] or '-'}; plot: {out.get('plot') or '-'}; {rerun}{num(out['simulated_s'], '.0f')} s "
                  f"simulated in {out['wall_s']:.1f} s wall on the {where}")
     return "\n".join(lines)

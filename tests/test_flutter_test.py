@@ -252,6 +252,66 @@ def test_monitor_identifies_a_dwell_of_exactly_the_minimum_length():
     assert len(published) == 1 and published[0][1].airspeed_mps == 5.0
 
 
+class _Recorder:
+    """A sink keeping what the node's bag keeps: every sample's time and tip, and the accepted airspeed commands."""
+
+    def __init__(self):
+        self.t, self.y, self.cmds = [], [], []
+
+    def on_block(self, block):
+        self.t.append(np.asarray(block.time_s, float))
+        self.y.append(np.asarray(block.tip_w_m, float))
+
+    def on_reading(self, reading):
+        self.on_block(type("B", (), {"time_s": [reading.time_s], "tip_w_m": [reading.tip_w_m]})())
+
+    def on_command(self, name, value, accepted, time_s):
+        if name == "airspeed_cmd" and accepted:
+            self.cmds.append((time_s, value))
+
+    def close(self):
+        pass
+
+
+def test_with_no_run_in_the_monitor_the_driver_and_the_replay_identify_the_same_window():
+    """`flutter-test --dwell 20 --settle 0`: the live test hung (no sample is taken at t = 0, so the monitor's first
+    window held one sample less than a 20 s dwell and was never identified; the node ran free and filled the disk),
+    and the in-process test's replay differed from its points. The node's monitor (a sink of the rig as in the node),
+    the in-process driver and the bag's replay now cut each window alike: the same points to 1e-12."""
+    from panel_rig.analysis.flutter_test import bands_from_model, identify_point, replay_points
+    from panel_rig.analysis.vg import model_flutter_speed
+    from panel_rig.model.stepper import Stepper
+    from panel_rig.rig.flutter_run import MIN_DWELL_S, FlutterMonitorSink, RigMeasure
+    from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
+
+    cfg = load_config()
+    st = Stepper(cfg)
+    uf, mode = model_flutter_speed(st.model)
+    rig = Rig(st, cfg.panel_length_m, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
+    published = []
+    monitor = FlutterMonitorSink(cfg, st.model, lambda *a, **k: published.append(a), settle_s=0.0,
+                                 dwell_s=MIN_DWELL_S)
+    rec = _Recorder()
+    rig.sinks += [monitor, rec]
+    settings = FlutterTestSettings(start_mps=0.5 * uf, step_mps=0.1 * uf, settle_s=0.0, dwell_s=MIN_DWELL_S)
+    measure, bands = RigMeasure(rig, settings), bands_from_model(st.model, mode)
+    driven = []
+    for k, u in enumerate((0.5 * uf, 0.6 * uf), 1):
+        tip, dt, _, fluttered = measure(u)
+        assert not fluttered
+        assert len(published) == k and published[-1][0] == pytest.approx(rig.time_s)  # at the dwell's end
+        assert tip.size == round(MIN_DWELL_S / dt)
+        driven.append(identify_point(tip, dt, u, bands(u), ssi=settings.ssi))
+    live = [p[1] for p in published]
+    replay = replay_points(np.concatenate(rec.t), np.concatenate(rec.y), rec.cmds, bands, cfg.panel_length_m,
+                           settle_s=0.0, min_dwell_s=MIN_DWELL_S, ssi=settings.ssi, dwell_s=MIN_DWELL_S)
+    assert len(replay) == 2
+    for a, b, c in zip(live, driven, replay):
+        for p in (b, c):
+            assert p.flutter.damping_ratio == pytest.approx(a.flutter.damping_ratio, abs=1e-12)
+            assert p.flutter.frequency_hz == pytest.approx(a.flutter.frequency_hz, abs=1e-12)
+
+
 def test_a_start_inside_the_margin_is_warned_of():
     """`--start-mps` at or above (1 - margin) U_f of the pre-test analysis: the test went there without a word."""
     from panel_rig.rig.flutter_run import start_warning

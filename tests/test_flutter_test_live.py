@@ -295,6 +295,35 @@ def test_a_node_whose_recording_failed_stops_the_live_test():
     assert "`panel-rig bag recover` on the run's rig_* bag" in why
 
 
+def test_a_point_the_node_never_reports_stops_the_test_in_simulated_time():
+    """A window the node's monitor never identified (`--dwell 20 --settle 0`, 2026-12-05) left the client waiting
+    while the fast node ran free: 269,000 simulated s, a 76 GB bag, a full disk. The client now bounds each point in
+    the node's simulated time (run-in + dwell + slack, from the first diagnostics report after the command) and
+    stops with a line that says so. The whole run, measured by hand with the monitor's finish disabled: exit 1 when
+    the first 20 s point was 81 simulated s overdue (2 Hz diagnostics at the fast node's RTF ~100), the node stopped
+    at 240 simulated s, its bag 70 MB, 7 s wall."""
+    pytest.importorskip("rclpy")
+    from panel_rig.ros.flutter_client import PointWatchdog, RigGone
+
+    dog = PointWatchdog(8.4, 20.0)  # slack max(10 s, 10 %): overdue past 30 s after the first report
+    for t in (float("nan"), 100.0, 110.0, 129.9, 130.0):
+        dog.check(t)
+    with pytest.raises(RigGone, match=r"no result for 8.4 m/s in 31 s \(simulated\) after the command, where run-in "
+                                      r"\+ dwell take 20 s"):
+        dog.check(131.0)
+    long = PointWatchdog(8.4, 200.0)  # 10 % slack for a long point
+    long.check(0.0)
+    long.check(220.0)
+    with pytest.raises(RigGone):
+        long.check(220.5)
+    restarted = PointWatchdog(8.4, 20.0)  # a clock that starts again (a restarted node) is a new reference
+    restarted.check(500.0)
+    restarted.check(1.0)
+    restarted.check(30.0)
+    with pytest.raises(RigGone):
+        restarted.check(31.5)
+
+
 def test_a_live_test_whose_node_failed_after_points_reports_them(tmp_path, capsys, monkeypatch):
     """The node's recording failed (or the node was lost) after two test points: the command said why in one line
     and the two points were in its progress lines only. Now they are reported as an interrupted test's (table or

@@ -443,6 +443,12 @@ TIME_TOLERANCE_S = 1e-6
 COMPLETE_DWELL_FRACTION = 0.99
 
 
+def kept_minimum(window_start_s: float, window_end_s: float, min_dwell_s: float) -> bool:
+    """A plateau's dwell window [start, end) (simulated s) is long enough to be a test point: at least
+    ``min_dwell_s``, measured in time (sums of simulated seconds differ in their last bits: TIME_TOLERANCE_S)."""
+    return window_end_s - window_start_s >= min_dwell_s - TIME_TOLERANCE_S
+
+
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
@@ -467,7 +473,7 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
         t_end = min(cmds[k + 1][0] if k + 1 < len(cmds) else t[-1], tc + settle_s + dwell_s)
         # (a window of exactly min_dwell_s computes a hair short: the 8.384 m/s point of a --dwell 20 test, commanded
         # at 63.00000000000001 s, was dropped and the prediction changed)
-        if (u <= 0 or t_end - tc - settle_s < min_dwell_s - TIME_TOLERANCE_S
+        if (u <= 0 or not kept_minimum(tc + settle_s, t_end, min_dwell_s)
                 or not _tunnel_at(t, airspeed_mps, tc + settle_s, t_end, u)):
             continue
         if out and u <= out[-1].airspeed_mps:  # the monitor follows the ascent only: a step down is no point (the

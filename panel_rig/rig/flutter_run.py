@@ -20,6 +20,7 @@ from panel_rig.analysis.flutter_test import (
     decide,
     flutter_report,
     identify_point,
+    kept_minimum,
     resample_window,
     run_procedure,
 )
@@ -70,49 +71,53 @@ class RigMeasure:
         self.dt_s = rig.dt_s * steps_per_sample
         self.per_block = max(1, int(round(EMIT_BLOCK_S / self.dt_s)))
         self.last: Dwell | None = None
-        self._newest = np.zeros(0)  # the newest sample marched so far (none before the first point)
+        self._newest = np.zeros(0), np.zeros(0)  # the newest sample marched so far, (s, m) (none before the first)
         self.flutter_time_s: float | None = None
         self.plateau_start_s = 0.0  # the rig's time at the newest airspeed command (s)
 
-    def _march(self, n_samples: int, done: Callable[[np.ndarray], None] | None = None) -> np.ndarray:
+    def _march(self, n_samples: int, done: Callable[[np.ndarray, np.ndarray], None] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """March n samples in blocks, each handed to the sinks (bag, viewer) as the node publishes its blocks;
-        ``done(all samples)`` runs inside the last block's ``atomic()``. Stops after a block that fluttered
-        (``flutter_time_s`` set; ``done`` not called)."""
-        tips = [np.zeros(0)]
+        ``done(times s, tips m)`` runs inside the last block's ``atomic()``. Returns (times s, tips m). Stops after a
+        block that fluttered (``flutter_time_s`` set; ``done`` not called)."""
+        times, tips = [np.zeros(0)], [np.zeros(0)]
         if n_samples <= 0 and done is not None:
             with self.atomic():
-                done(tips[0])
+                done(times[0], tips[0])
         for start in range(0, n_samples, self.per_block):
             with self.atomic():
                 blk = self.rig.advance_samples([self.steps_per_sample] * min(self.per_block, n_samples - start))
                 self.rig.emit_block(blk)
+                times.append(np.asarray(blk.time_s, dtype=float))
                 tips.append(np.asarray(blk.tip_w_m, dtype=float))
                 if fluttered(tips[-1], self.rig.panel_length_m, self.rig.state != RUNNING):
                     self.flutter_time_s = self.rig.time_s
                     break
                 if done is not None and start + self.per_block >= n_samples:
-                    done(np.concatenate(tips))
-        return np.concatenate(tips)
+                    done(np.concatenate(times), np.concatenate(tips))
+        return np.concatenate(times), np.concatenate(tips)
 
     def __call__(self, u: float) -> tuple[np.ndarray, float, None, bool]:
         result = self.rig.command_airspeed(u)
         if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
             raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
         self.flutter_time_s, self.plateau_start_s = None, self.rig.time_s
-        settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
+        settle_t, settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
         if self.flutter_time_s is not None:
             return settle, self.dt_s, None, True
-        before = np.concatenate([self._newest, settle])
+        before_t, before = np.concatenate([self._newest[0], settle_t]), np.concatenate([self._newest[1], settle])
+        start_s = self.plateau_start_s + self.settings.settle_s
 
-        def dwell_done(dwell: np.ndarray) -> None:
-            # the monitor's window [command + settle, command + settle + dwell), as the node's monitor and the
-            # bag's replay cut it (resample_window): from the sample at its start, the dwell's last sample left out
-            self._newest = np.concatenate([before, dwell])[-1:]
-            self.last = Dwell(u, np.concatenate([before[-1:], dwell[:-1]]), self.dt_s,
-                              fluttered(np.concatenate([settle, dwell]), self.rig.panel_length_m,
-                                        self.rig.state != RUNNING))
+        def dwell_done(dwell_t: np.ndarray, dwell: np.ndarray) -> None:
+            # the monitor's window [command + settle, command + settle + dwell), cut as the node's monitor and the
+            # bag's replay cut it (resample_window on the same samples: the one at the window's start, if marched)
+            t_all, y_all = np.concatenate([before_t, dwell_t]), np.concatenate([before, dwell])
+            self._newest = t_all[-1:], y_all[-1:]
+            window, dt_s = resample_window(t_all, y_all, start_s, start_s + self.settings.dwell_s)
+            self.last = Dwell(u, window, dt_s, fluttered(np.concatenate([settle, dwell]), self.rig.panel_length_m,
+                                                         self.rig.state != RUNNING))
 
-        dwell = self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
+        _, dwell = self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
         if self.flutter_time_s is not None:
             return dwell, self.dt_s, None, True
         last = self.last
@@ -229,6 +234,7 @@ class FlutterMonitorSink:
         self._u: float | None = None
         self._t: list[np.ndarray] = []
         self._y: list[np.ndarray] = []
+        self._newest = np.zeros(0), np.zeros(0)  # the newest sample seen, (s, m): a window may start at it
 
     @property
     def window_s(self) -> tuple[float, float]:
@@ -243,19 +249,24 @@ class FlutterMonitorSink:
         self._take(block.time_s, block.tip_w_m, block.state)
 
     def _take(self, t: np.ndarray, y: np.ndarray, state: str = RUNNING) -> None:
+        t, y = np.asarray(t, float), np.asarray(y, float)
+        self._newest = t[-1:], y[-1:]
         if self._u is None or self._u <= 0 or self.waiting:
             return
-        t, y = np.asarray(t, float), np.asarray(y, float)
         if fluttered(y, self.panel_length_m, state != RUNNING):
             self._report_flutter(float(t[-1]))
             return
+        self._keep(t, y)
+        if t[-1] >= self.window_s[1]:
+            self.finish(float(t[-1]))
+
+    def _keep(self, t: np.ndarray, y: np.ndarray) -> None:
+        """Keep the samples inside the dwell window (the recording holds them all: the replay cuts the same)."""
         lo, hi = self.window_s
         keep = (t >= lo) & (t < hi)
         if np.any(keep):
             self._t.append(t[keep])
             self._y.append(y[keep])
-        if t[-1] >= hi:
-            self.finish(float(t[-1]))
 
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         if name != "airspeed_cmd" or not accepted or not self.enabled:
@@ -264,6 +275,7 @@ class FlutterMonitorSink:
             self.finish(time_s)
         self._u, self.plateau_start_s, self._t, self._y = float(value), float(time_s), [], []
         self.waiting = False
+        self._keep(*self._newest)  # with no run-in the window starts at the sample taken at the command
 
     def _report_flutter(self, time_s: float) -> None:
         self._t, self._y = [], []
@@ -278,16 +290,17 @@ class FlutterMonitorSink:
             return
         t, y = np.concatenate(self._t), np.concatenate(self._y)
         self._t, self._y = [], []
-        # N samples cover N sample periods: a complete 20 s dwell spans 20 s - 1/512 s from first to last sample
-        # (compared with the span alone, a dwell of exactly min_dwell_s was never identified and the test hung)
-        period = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-        if t[-1] - t[0] + period < self.min_dwell_s - 0.5 * period:
+        lo, hi = self.window_s
+        end_s = min(hi, time_s)
+        # the window's length in time, as the replay measures it (kept_minimum): a count of samples misses the one
+        # at the window's start when none was taken there (no run-in from t = 0), and a complete 20 s dwell was
+        # then never identified: the test hung
+        if not kept_minimum(lo, end_s, self.min_dwell_s):
             return
         if self.points and self._u <= self.points[-1].airspeed_mps:
             return  # the monitor follows the ascent only
-        lo, hi = self.window_s
         w0 = time.monotonic()
-        yy, dt = resample_window(t, y, lo, min(hi, time_s))
+        yy, dt = resample_window(t, y, lo, end_s)
         pt = identify_point(yy, dt, self._u, self.bands(self._u), ssi=self.settings.ssi)
         self.points.append(pt)
         d = decide(self.points, self.settings)

@@ -39,6 +39,36 @@ class RigGone(RuntimeError):
 DISCOVERY_SETTLE_S = 3.5
 
 
+class PointWatchdog:
+    """Bounds the wait for one test point in the node's simulated time: its result is due when the plateau's run-in
+    and dwell (``point_s``) have passed, and the node's monitor publishes it in the block that completes the dwell.
+    Past ``point_s`` + the slack, the point is overdue: :meth:`check` raises RigGone (the test winds the tunnel off
+    and stops its node) instead of waiting while the node runs free, recording, in fast mode (a window the monitor
+    never identified once ran 269,000 simulated s and filled the disk with a 76 GB bag). Times come from the node's
+    /diagnostics (2 Hz wall); the first report after the command is the reference, so a report from before the
+    command cannot make a point look overdue."""
+
+    #: the slack past run-in + dwell: a diagnostics report's age (0.5 s wall) at real time, plus room
+    SLACK_S, SLACK_FRACTION = 10.0, 0.1
+
+    def __init__(self, airspeed_mps: float, point_s: float) -> None:
+        self.airspeed_mps, self.point_s = float(airspeed_mps), float(point_s)
+        self.limit_s = self.point_s + max(self.SLACK_S, self.SLACK_FRACTION * self.point_s)
+        self._since_s: float | None = None
+
+    def check(self, sim_time_s: float) -> None:
+        """``sim_time_s``: the node's simulated time in a diagnostics report received after the command (s)."""
+        if not math.isfinite(sim_time_s):
+            return
+        if self._since_s is None or sim_time_s < self._since_s:  # the first report (or a restarted node's clock)
+            self._since_s = sim_time_s
+        waited = sim_time_s - self._since_s
+        if waited > self.limit_s:
+            raise RigGone(f"the node's flutter monitor gave no result for {self.airspeed_mps:g} m/s in {waited:.0f} s "
+                          f"(simulated) after the command, where run-in + dwell take {self.point_s:g} s: the test "
+                          "stopped there (a fault of the monitor: please report it with the node log)")
+
+
 class FlutterTestClient(Node):
     """Airspeed commands out; flutter-monitor results and tunnel diagnostics in."""
 
@@ -46,6 +76,7 @@ class FlutterTestClient(Node):
                  **kwargs: Any) -> None:
         super().__init__("panel_rig_flutter_test", namespace=namespace, **kwargs)
         self.timeout_s = timeout_s
+        self.point_s = math.inf  # a test point's run-in + dwell, simulated s (the test's settings): PointWatchdog
         self.alive = alive or (lambda: True)
         self.stop: StopRequest | None = None  # set by a signal: the test's waits end between rclpy calls
         self.pub_airspeed = self.create_publisher(Float64, "airspeed_cmd", COMMAND_QOS)
@@ -114,11 +145,13 @@ class FlutterTestClient(Node):
 
     def test_point(self, executor: Any, airspeed_mps: float) -> tuple[TestPoint | None, bool, dict[str, Any]]:
         """Command ``airspeed_mps`` and wait for the monitor's result for it: (point, fluttered, raw values). The
-        dwell is the node's, in simulated time; this waits in wall time for however long that takes."""
+        dwell is the node's, in simulated time; this waits in wall time for however long that takes, up to the
+        :class:`PointWatchdog`'s bound in simulated time."""
         seen = len(self.results)
         rejected = self._rejected()
         self.command(airspeed_mps)
         self._last_heard = time.monotonic()
+        watchdog, reports = PointWatchdog(airspeed_mps, self.point_s), self.diagnostics_received
         while True:
             for values in self.results[seen:]:
                 if values.get("airspeed_mps") == float(airspeed_mps):
@@ -128,6 +161,8 @@ class FlutterTestClient(Node):
             if self._rejected() > rejected:  # the node refused the set-point: no test point will come
                 raise RigGone(f"airspeed {airspeed_mps:g} m/s rejected by the rig: "
                               f"{self.diagnostics.get('last_rejection', '?')}")
+            if self.diagnostics_received > reports:
+                watchdog.check(self.sim_time_s)
             self._spin(executor, 0.05)
 
     def _rejected(self) -> int:

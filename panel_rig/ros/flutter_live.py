@@ -46,6 +46,7 @@ class Drive:
     results: list[dict[str, Any]] = field(default_factory=list)
     startup_s: float = math.nan
     test_s: float = math.nan
+    sim_time_s: float = math.nan  # the node's simulated time in its last diagnostics report (s)
 
 
 def node_max_airspeed_mps(uf_mps: float) -> float:
@@ -169,11 +170,12 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         out = res.as_dict()
         results = drive.results
         last = results[-1] if results else {}
-        sim = float(last.get("sim_time_s", float("nan")))
+        # the last result's time; a test stopped before any (or overdue) has the node's last reported time
+        sim = _finite(float(last.get("sim_time_s", drive.sim_time_s)))
         out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, required_margin=margin, live=True,
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
-                   wall_s=time.monotonic() - t0, node_startup_wall_s=drive.startup_s,
-                   test_wall_s=drive.test_s, node_rtf=sim / drive.test_s if drive.test_s > 0 else None,
+                   wall_s=time.monotonic() - t0, node_startup_wall_s=_finite(drive.startup_s),
+                   test_wall_s=_finite(drive.test_s), node_rtf=sim / drive.test_s if sim is not None and drive.test_s > 0 else None,
                    node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
                    node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
                    monitor_times_s=[float(r["sim_time_s"]) for r in results],
@@ -242,6 +244,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
     executor = SingleThreadedExecutor(context=ctx)
     client = FlutterTestClient(NAMESPACE, alive=lambda: node.poll() is None, context=ctx)
     client.stop = stop_request
+    client.point_s = settings.settle_s + settings.dwell_s
     executor.add_node(client)
     t0 = time.monotonic()
     try:
@@ -266,6 +269,7 @@ def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: flo
         client.settle_commands(executor)
     finally:
         drive.results = list(client.results)
+        drive.sim_time_s = client.sim_time_s
         executor.remove_node(client)
         client.destroy_node()
         executor.shutdown()
