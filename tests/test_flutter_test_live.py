@@ -6,6 +6,7 @@ were tried first: the damping estimates (+-0.004) did not fall monotonically and
 model decided whether a prediction existed."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -201,6 +202,8 @@ def test_a_terminated_flutter_test_turns_the_wind_off_and_stops_its_node(ros_env
     assert "flutter-test stopped by SIGTERM after 0 identified test point(s)" in err, err[-2000:]
     assert "stop: interrupted by SIGTERM after 0 test point(s)" in out, out
     assert f"max airspeed {commands[0]:.3f} m/s" in out, out  # the point under way was commanded
+    # no result yet: the simulated time is the node's last reported one (it read "nan s simulated ... RTF nan")
+    assert "nan" not in out and int(re.search(r"; (\d+) s simulated in ", out).group(1)) > 0, out
     gone, alive = psutil.wait_procs(node_procs, timeout=10)
     assert not alive, f"left running: {alive}"
     bag = load_series(next(tmp_path.glob("flutter_test_*/rig_*")))
