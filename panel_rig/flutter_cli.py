@@ -200,17 +200,21 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         interrupted_result,
         run_procedure,
     )
-    from panel_rig.rig.flutter_run import RigMeasure, pretest_plan, start_problem, start_warning, take_late_point
-    from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
-    from panel_rig.rig.safety import SafetyLimits
+    from panel_rig.rig.flutter_run import (
+        RigMeasure,
+        max_test_airspeed_mps,
+        node_equivalent_rig,
+        pretest_plan,
+        start_problem,
+        start_warning,
+        take_late_point,
+    )
     from panel_rig.ros import messages
     from panel_rig.ros.flutter_monitor import TOPIC, monitor_msg
 
     t0 = time.monotonic()
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
-    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
-                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
-    problem = start_problem(settings, limits.max_airspeed_mps)
+    problem = start_problem(settings, max_test_airspeed_mps(uf))
     if problem is not None:  # before the bag is made: nothing half-recorded is left behind
         raise ValueError(problem)
     warning = start_warning(start_mps, uf, margin)
@@ -240,8 +244,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         viz = RerunLogger(len(np.atleast_1d(st.q)), mode="save", target=rerun, recording_name="flutter_test",
                           views=("flutter", "flutter_uf", "flutter_zw"))
         sinks.append(viz)
-    rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), sinks=sinks,
-              **tunnel_extras(cfg, st))
+    rig = node_equivalent_rig(cfg, st, uf, sinks)
     if viz is not None:
         rig.sinks.append(ShapeSink(viz, rig, cfg))
     history: list[tuple[float, Any, Any]] = []

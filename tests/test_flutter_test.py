@@ -281,13 +281,12 @@ def test_with_no_run_in_the_monitor_the_driver_and_the_replay_identify_the_same_
     from panel_rig.analysis.flutter_test import bands_from_model, identify_point, replay_points
     from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.model.stepper import Stepper
-    from panel_rig.rig.flutter_run import MIN_DWELL_S, FlutterMonitorSink, RigMeasure
-    from panel_rig.rig.rig import Rig, TunnelSettings, tunnel_extras
+    from panel_rig.rig.flutter_run import MIN_DWELL_S, FlutterMonitorSink, RigMeasure, node_equivalent_rig
 
     cfg = load_config()
     st = Stepper(cfg)
     uf, mode = model_flutter_speed(st.model)
-    rig = Rig(st, cfg.panel_length_m, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
+    rig = node_equivalent_rig(cfg, st, uf)
     published = []
     monitor = FlutterMonitorSink(cfg, st.model, lambda *a, **k: published.append(a), settle_s=0.0,
                                  dwell_s=MIN_DWELL_S)
@@ -410,10 +409,11 @@ def test_cli_flutter_test_stopped_by_sigterm_reports_its_points(tmp_path, capsys
 
 
 @pytest.mark.parametrize(("start_mps", "message"), [
-    ("150", "--start-mps: airspeed must be in [0, 100] m/s"),
-    ("30", "--start-mps 30 m/s is above the rig's airspeed limit 20.96"),
-    ("0", "--start-mps must be a number > 0 (m/s), got 0.0"),
-    ("nan", "--start-mps must be a number > 0 (m/s), got nan"),
+    ("150", "--start-mps must be in (0, 100] m/s, got 150"),
+    ("40", "--start-mps must be at most this test's airspeed limit, 30 m/s (the node's limit or 1.2 x the model's "
+           "U_f, the larger), got 40"),
+    ("0", "--start-mps must be in (0, 100] m/s, got 0"),
+    ("nan", "--start-mps must be in (0, 100] m/s, got nan"),
 ])
 def test_a_start_the_rig_would_refuse_exits_2_before_anything_is_recorded(tmp_path, capsys, start_mps, message):
     """--start-mps 150 printed the margin warning, ran the pre-test analysis, left a bag in --bag-dir and only then

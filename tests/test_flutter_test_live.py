@@ -135,7 +135,7 @@ def test_live_flutter_test_reports_a_refused_set_point(tmp_path, capsys, monkeyp
     args = ["flutter-test", "--start-mps", "50", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "v.png")]
     code = main(args)
     err = capsys.readouterr().err
-    assert code == 2 and len(err.splitlines()) == 1 and "above the rig's airspeed limit" in err, err
+    assert code == 2 and len(err.splitlines()) == 1 and "must be at most this test's airspeed limit, 30 m/s" in err, err
     assert not any(tmp_path.iterdir())
     monkeypatch.setattr(flutter_live, "start_problem", lambda settings, limit: None)
     code = main(args)

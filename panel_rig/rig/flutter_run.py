@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass
-from typing import Any, Callable, ContextManager
+from typing import Any, Callable, ContextManager, Sequence
 
 import numpy as np
 
@@ -166,8 +166,8 @@ def start_problem(settings: FlutterTestSettings, max_airspeed_mps: float) -> str
     """Why the plan cannot start on a rig whose airspeed limit is ``max_airspeed_mps``: a first point above it
     (checked before anything is recorded; the rig would refuse the command). None when it can."""
     if settings.start_mps > max_airspeed_mps:
-        return (f"--start-mps {settings.start_mps:g} m/s is above the rig's airspeed limit "
-                f"{max_airspeed_mps:g} m/s for this test")
+        return (f"--start-mps must be at most this test's airspeed limit, {max_airspeed_mps:g} m/s (the node's "
+                f"limit or 1.2 x the model's U_f, the larger), got {settings.start_mps:.10g}")
     return None
 
 
@@ -179,6 +179,20 @@ def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str 
         return None
     return (f"warning: --start-mps {start_mps:g} m/s is at or above (1 - margin) x the pre-test analysis's flutter "
             f"speed ({1.0 - margin:g} x {uf_mps:.3f} = {edge:.3f} m/s): the first point may flutter")
+
+
+def max_test_airspeed_mps(uf_mps: float) -> float:
+    """A flutter test's airspeed limit (m/s): the node's default ``safety.max_airspeed_mps``, raised to 1.2 U_f (the
+    tunnel's limit must not stop the approach of a stiffer panel's boundary)."""
+    return float(max(SafetyLimits().max_airspeed_mps, 1.2 * uf_mps))
+
+
+def node_equivalent_rig(cfg: PanelConfig, stepper: Any, uf_mps: float, sinks: Sequence[Any] = ()) -> Rig:
+    """The rig a flutter test's node runs, in-process: ``cfg``'s turbulence, sensor and tip limit, the tunnel's
+    airspeed lag and the node's other defaults (wall clearance, shaker limits), the test's airspeed limit."""
+    limits = SafetyLimits(max_airspeed_mps=max_test_airspeed_mps(uf_mps), max_tip_w_over_L=cfg.max_tip_w_over_L)
+    return Rig(stepper, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(), sinks=list(sinks),
+               **tunnel_extras(cfg, stepper))
 
 
 def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,
@@ -195,9 +209,7 @@ def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSet
         raise ValueError("the model does not flutter below 60 m/s")
     uf, mode = found
     settings = settings or default_plan(uf, margin, start_mps)
-    limits = SafetyLimits(max_airspeed_mps=2 * uf, max_tip_w_over_L=cfg.max_tip_w_over_L,
-                          wall_clearance_m=cfg.max_tip_w_over_L * cfg.panel_length_m)
-    rig = Rig(st, cfg.panel_length_m, limits=limits, tunnel=TunnelSettings(0.0), **tunnel_extras(cfg, st))
+    rig = node_equivalent_rig(cfg, st, uf)
     return run_procedure(RigMeasure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
 
 

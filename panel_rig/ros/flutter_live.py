@@ -28,7 +28,7 @@ from panel_rig.processes import (
     spawn,
     stop,
 )
-from panel_rig.rig.flutter_run import pretest_plan, start_problem, start_warning
+from panel_rig.rig.flutter_run import max_test_airspeed_mps, pretest_plan, start_problem, start_warning
 
 if TYPE_CHECKING:
     from panel_rig.analysis.flutter_test import FlutterTestResult
@@ -49,14 +49,6 @@ class Drive:
     sim_time_s: float = math.nan  # the node's simulated time in its last diagnostics report (s)
 
 
-def node_max_airspeed_mps(uf_mps: float) -> float:
-    """The test node's ``safety.max_airspeed_mps``: the node's default, raised to 1.2 U_f (the tunnel's limit must
-    not stop the approach of a stiffer panel's boundary)."""
-    from panel_rig.ros.params import NODE_PARAMS
-
-    return float(max(NODE_PARAMS["safety.max_airspeed_mps"].default, 1.2 * uf_mps))
-
-
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
                     bag_dir: Path | None, rerun: str | None) -> dict[str, Any]:
     """Every parameter the node needs for the test: the run's physics (so the node's model is the one the test
@@ -74,7 +66,7 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
             "publish_rate_hz": 1.0 / (steps * cfg.dt_s),
             "flutter_test.settle_s": float(settle_s), "flutter_test.dwell_s": float(dwell_s),
             "flutter_test.margin": float(margin), "flutter_test.hold": True,
-            "safety.max_airspeed_mps": node_max_airspeed_mps(uf_mps),
+            "safety.max_airspeed_mps": max_test_airspeed_mps(uf_mps),
             "record": bag_dir is not None, "bag_dir": str(bag_dir) if bag_dir is not None else "bags",
             "rerun": f"save:{rerun}" if rerun else "none"}
 
@@ -95,7 +87,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     # the pre-test analysis (this process) gives the plan: U_f, the start and the step; a start the node would refuse
     # ends here, before a run directory is made
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
-    problem = start_problem(settings, node_max_airspeed_mps(uf))
+    problem = start_problem(settings, max_test_airspeed_mps(uf))
     if problem is not None:
         raise ValueError(problem)
     did = private_domain_id() if domain_id is None else int(domain_id)
