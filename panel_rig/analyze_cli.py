@@ -103,7 +103,13 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
     the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
     bag has no airspeed commands or the model does not flutter."""
-    from panel_rig.analysis.flutter_test import FlutterTestSettings, bands_from_model, decide, replay_points
+    from panel_rig.analysis.flutter_test import (
+        FlutterTestSettings,
+        bands_from_model,
+        decide,
+        no_point_reason,
+        replay_points,
+    )
     from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.config import SCHEMA, config_from_flat
     from panel_rig.model.stepper import Stepper
@@ -137,6 +143,8 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
                            "prediction_method": None, "margin": None, "required_margin": margin}
+    if not points:
+        out["no_test_point_reason"] = no_point_reason(float(rec.t_s[-1]) if rec.t_s.size else 0.0, cmds, **window)
     d = None
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))
@@ -308,6 +316,8 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"flutter onset bracket: {low} .. {high} m/s; "
                      f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
     ft = result.get("flutter_test")
+    if ft and not ft["test_points"] and ft.get("no_test_point_reason"):
+        lines.append(f"flutter-test replay: no test point ({ft['no_test_point_reason']})")
     if ft and ft["test_points"]:
         lines.append("flutter-test replay (subcritical ascent; flutter mode, 95 % intervals):")
         for p in ft["test_points"]:

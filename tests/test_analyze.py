@@ -756,6 +756,27 @@ def test_a_run_without_an_unstable_plateau_reports_no_onset() -> None:
     assert last.startswith("flutter onset: no plateau was unstable; extrapolated"), last
 
 
+def test_a_bag_without_test_points_says_why() -> None:
+    """`analyze` on a demo bag printed no flutter-test replay and did not say why (no plateau had 20 s after its
+    5 s run-in). The replay now names the reason, in the table and the JSON."""
+    from panel_rig.analysis.bag_analysis import estimate_onset
+    from panel_rig.analysis.flutter_test import no_point_reason
+    from panel_rig.analyze_cli import format_table
+
+    short = no_point_reason(30.0, [(0.0, 5.0), (10.0, 6.0)])  # windows 5-10 s (5 s) and 15-30 s (15 s)
+    assert short == "a test point needs 20 s of a plateau after its 5 s run-in; the longest here has 15.0 s"
+    assert no_point_reason(30.0, [(0.0, 0.0)]) == "no airspeed plateau above 0 m/s"
+    assert no_point_reason(40.0, [(0.0, 5.0)]).startswith("no plateau of 20 s after its run-in qualified")
+    assert "the longest here has 20.0 s" not in no_point_reason(25.0, [(0.0, 5.0)])  # exactly 20 s is enough
+    plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 30.0, "airspeed_mps": 6.0, "rms_tip_w_over_L": 1e-5,
+               "peak_tip_w_over_L": 3e-5, "dominant_frequency_hz": 26.0, "growth_rate_per_s": -0.5,
+               "status": "decaying"}
+    result = {"bag": "b", "duration_s": 30.0, "samples": 15000, "panel_length_m": 0.27, "panel_length_source": "bag",
+              "plateaus": [plateau], "onset": estimate_onset([plateau]),
+              "flutter_test": {"test_points": [], "no_test_point_reason": short}}
+    assert f"flutter-test replay: no test point ({short})" in format_table(result).splitlines()
+
+
 def test_a_replay_without_a_prediction_says_why_not_none() -> None:
     """One identified point gives no prediction: the table printed "predicted U_f - m/s [None]"."""
     from panel_rig.analysis.bag_analysis import estimate_onset

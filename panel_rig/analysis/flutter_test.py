@@ -437,6 +437,8 @@ def _tunnel_at(t: np.ndarray, airspeed_mps: np.ndarray | None, t0_s: float, t1_s
     return not u.size or abs(float(np.median(u)) - u_mps) <= AIRSPEED_MATCH_MPS + AIRSPEED_MATCH_REL * u_mps
 
 
+#: the shortest dwell window that is a test point (simulated s): `flutter-test --dwell`'s least value
+MIN_DWELL_S = 20.0
 #: times closer than this (s) are the same time: sums of simulated seconds differ in their last bits
 TIME_TOLERANCE_S = 1e-6
 #: a monitored recording's window at least this fraction of the dwell long is a completed test point
@@ -449,9 +451,33 @@ def kept_minimum(window_start_s: float, window_end_s: float, min_dwell_s: float)
     return window_end_s - window_start_s >= min_dwell_s - TIME_TOLERANCE_S
 
 
+def plateau_windows(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]], settle_s: float = 5.0,
+                    dwell_s: float = np.inf) -> list[tuple[float, float, float, float]]:
+    """Each airspeed command's dwell window as the live monitor takes it: (command time s, airspeed m/s, window
+    start s, window end s), the window from the command + ``settle_s`` to the next command (or ``t_last_s``, the
+    recording's end), at most ``dwell_s`` long; in time order."""
+    cmds = sorted(airspeed_cmds)
+    return [(tc, u, tc + settle_s,
+             min(cmds[k + 1][0] if k + 1 < len(cmds) else t_last_s, tc + settle_s + dwell_s))
+            for k, (tc, u) in enumerate(cmds)]
+
+
+def no_point_reason(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]], settle_s: float = 5.0,
+                    dwell_s: float = np.inf, min_dwell_s: float = MIN_DWELL_S) -> str:
+    """Why :func:`replay_points` found no test point in a recording (said by `analyze`, which was silent)."""
+    spans = [end - start for _, u, start, end in plateau_windows(t_last_s, airspeed_cmds, settle_s, dwell_s) if u > 0]
+    if not spans:
+        return "no airspeed plateau above 0 m/s"
+    if not kept_minimum(0.0, max(spans), min_dwell_s):
+        return (f"a test point needs {min_dwell_s:g} s of a plateau after its {settle_s:g} s run-in; the longest here "
+                f"has {max(0.0, max(spans)):.1f} s")
+    return (f"no plateau of {min_dwell_s:g} s after its run-in qualified: the tunnel was not at the command, the "
+            "first such plateau fluttered, or a flutter test's dwell was cut short")
+
+
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
-                  force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = 20.0,
+                  force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S,
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
                   airspeed_mps: np.ndarray | None = None, complete_only: bool = False) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
@@ -467,26 +493,24 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
-    cmds = sorted(airspeed_cmds)
     out: list[TestPoint] = []
-    for k, (tc, u) in enumerate(cmds):
-        t_end = min(cmds[k + 1][0] if k + 1 < len(cmds) else t[-1], tc + settle_s + dwell_s)
+    for tc, u, t_from, t_end in plateau_windows(t[-1], airspeed_cmds, settle_s, dwell_s):
         # (a window of exactly min_dwell_s computes a hair short: the 8.384 m/s point of a --dwell 20 test, commanded
         # at 63.00000000000001 s, was dropped and the prediction changed)
-        if (u <= 0 or not kept_minimum(tc + settle_s, t_end, min_dwell_s)
-                or not _tunnel_at(t, airspeed_mps, tc + settle_s, t_end, u)):
+        if (u <= 0 or not kept_minimum(t_from, t_end, min_dwell_s)
+                or not _tunnel_at(t, airspeed_mps, t_from, t_end, u)):
             continue
         if out and u <= out[-1].airspeed_mps:  # the monitor follows the ascent only: a step down is no point (the
             continue  # replay stopped there, and a live test's later points, the monitor's too, were lost)
-        if _fluttered(t, y, tc, tc + settle_s, t_end, force_npm, panel_length_m):
+        if _fluttered(t, y, tc, t_from, t_end, force_npm, panel_length_m):
             break
         if complete_only and t_end - tc - settle_s < COMPLETE_DWELL_FRACTION * dwell_s:
             continue
-        yy, dt = resample_window(t, y, tc + settle_s, t_end)
+        yy, dt = resample_window(t, y, t_from, t_end)
         if yy.size < 16:
             continue
         ff = None
         if force_npm is not None:
-            ff = np.interp(tc + settle_s + dt * np.arange(yy.size), t, np.asarray(force_npm, float))
+            ff = np.interp(t_from + dt * np.arange(yy.size), t, np.asarray(force_npm, float))
         out.append(identify_point(yy, dt, u, bands(u), ff, ssi))
     return out

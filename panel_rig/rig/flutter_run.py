@@ -12,6 +12,7 @@ import numpy as np
 
 from panel_rig.analysis.flutter_test import (
     FLUTTER_TIP_FRACTION,
+    MIN_DWELL_S,
     Decision,
     FlutterTestResult,
     FlutterTestSettings,
@@ -30,7 +31,7 @@ from panel_rig.rig.safety import SafetyLimits
 
 #: a test point's run-in and dwell (simulated s): the bounds the CLI and the node's flutter_test.* parameters share
 MAX_SETTLE_S = 1e4
-MIN_DWELL_S, MAX_DWELL_S = 20.0, 1e5
+MAX_DWELL_S = 1e5  # (MIN_DWELL_S: the replay's, analysis.flutter_test)
 
 
 def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
