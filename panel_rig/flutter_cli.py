@@ -403,7 +403,7 @@ def format_flutter_test(out: dict[str, Any]) -> str:
     lines.append(f"{pred}; model linear U_f {out['model_flutter_speed_mps']:.3f} m/s")
     margin = "" if out.get("margin") is None else (
         f"predicted margin {out['margin']:.3f} at the last point (required {out.get('required_margin', 0.1):g}); ")
-    lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; {margin}fluttered: {out['fluttered']}; "
+    lines.append(f"max airspeed {out['max_airspeed_mps']:.3f} m/s; {margin}fluttered: {'yes' if out['fluttered'] else 'no'}; "
                  f"stop: {out['stop_reason']}")
     # (the wall time includes the node's start: "7 s simulated in 4.9 s wall ... RTF 79.7" read as a contradiction)
     where = (f"live node (ROS_DOMAIN_ID {out['ros_domain_id']}; its start took {num(out['node_startup_wall_s'], '.1f')} s, "

@@ -6,9 +6,12 @@ were tried first: the damping estimates (+-0.004) did not fall monotonically and
 model decided whether a prediction existed."""
 
 import json
+import os
 import re
+import stat
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -54,6 +57,12 @@ def test_live_flutter_test_json_and_lockstep(live_run):
     # the third point (0.9 U_f) is close enough for the procedure to stop on the margin, or the point budget ends it
     assert out["stop_reason"] == "3 test points done" or out["stop_reason"].startswith("predicted margin")
     assert (tmp / "vg.png").stat().st_size > 0
+    # the run directory is made as the user's other directories are (it was 0700) and named as the in-process one
+    run_dir = Path(out["bag"]).parent
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(run_dir.stat().st_mode) == 0o777 & ~umask and re.fullmatch(r"flutter_test_\d{8}_\d{6}(_\d+)?",
+                                                                                   run_dir.name), run_dir
 
 
 def test_live_flutter_test_shows_each_point_as_it_is_identified(live_run):

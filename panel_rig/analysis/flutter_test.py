@@ -169,14 +169,15 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
     last = points[-1].flutter
     if last is None:  # nothing says this airspeed is stable: no step from it
         return Decision(None, f"{NOT_IDENTIFIED} at {u:.3f} m/s: no damping to clear the next point on; excite it "
-                              "more (turbulence, a shaker tap) or dwell longer", trend, zw, pred)
+                              "more (the tunnel's turbulence, tunnel.turbulence.intensity) or dwell longer", trend, zw, pred)
     if last.damping_ratio < settings.min_damping:
         return Decision(None, f"flutter-mode damping {last.damping_ratio:.4f} < {settings.min_damping}", trend, zw,
                         pred)
     if pred is not None and pred.margin(u) < settings.margin:
         return Decision(None, f"predicted margin {pred.margin(u):.3f} < {settings.margin}", trend, zw, pred)
     if len(points) >= settings.max_points:
-        return Decision(None, f"{settings.max_points} test points done", trend, zw, pred)
+        n = settings.max_points
+        return Decision(None, f"{n} test point{'s' if n != 1 else ''} done", trend, zw, pred)
     nxt = u + settings.step_mps
     reason = "step"
     if pred is not None:

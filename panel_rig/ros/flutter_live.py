@@ -91,9 +91,11 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     if problem is not None:
         raise ValueError(problem)
     did = private_domain_id() if domain_id is None else int(domain_id)
-    base = Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir())
-    base.mkdir(parents=True, exist_ok=True)
-    run_dir = Path(tempfile.mkdtemp(prefix=time.strftime("flutter_test_%Y%m%d_%H%M%S_"), dir=base))
+    from panel_rig.recording.writer import fresh_bag_dir
+
+    # named as the in-process test's, made with the user's umask (mkdtemp made it 0700: others could not read a
+    # shared bags directory's run)
+    run_dir = fresh_bag_dir(Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir()), "flutter_test")
 
     warning = start_warning(start_mps, uf, margin)
     if warning is not None and progress is not None:
