@@ -30,6 +30,13 @@ WARM_STARTS = 9
 UP_LINE = re.compile(r"\[(\d+\.\d+)\] \[[\w.]*panel_rig\]: panel_rig up")
 
 
+def _node_env(extra_env: dict[str, str] | None = None) -> tuple[int, dict[str, str], list[str]]:
+    """A private ROS domain for one node and its probes: (domain id, the environment, the node's command line)."""
+    domain = random.randint(150, 199)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **(extra_env or {}))
+    return domain, env, [str(Path(sys.executable).parent / "panel-rig"), "run", "--ros-args", "-r", "__ns:=/rig"]
+
+
 def start_times_s(extra_env: dict[str, str]) -> tuple[float, float]:
     """(seconds from process start to the first tip_displacement message received by a subscriber here, seconds to
     the node's own "panel_rig up" log line): the difference is DDS discovery between the two processes."""
@@ -37,8 +44,7 @@ def start_times_s(extra_env: dict[str, str]) -> tuple[float, float]:
     from geometry_msgs.msg import PointStamped
     from rclpy.qos import qos_profile_sensor_data
 
-    domain = random.randint(150, 199)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", **extra_env)
+    domain, env, node_cmd = _node_env(extra_env)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("startup_probe", context=ctx)
@@ -47,14 +53,12 @@ def start_times_s(extra_env: dict[str, str]) -> tuple[float, float]:
                              qos_profile_sensor_data)
     exe = rclpy.executors.SingleThreadedExecutor(context=ctx)
     exe.add_node(node)
-    panel_rig = Path(sys.executable).parent / "panel-rig"
     with tempfile.TemporaryDirectory() as log_dir:
         env["ROS_LOG_DIR"] = log_dir
         log = Path(log_dir) / "console.txt"
         t0, t0_wall = time.monotonic(), time.time()
         with log.open("w") as console:
-            proc = subprocess.Popen([str(panel_rig), "run", "--ros-args", "-r", "__ns:=/rig"], env=env,
-                                    stdout=console, stderr=subprocess.STDOUT)
+            proc = subprocess.Popen(node_cmd, env=env, stdout=console, stderr=subprocess.STDOUT)
         try:
             while not got and proc.poll() is None and time.monotonic() - t0 < 300:
                 exe.spin_once(timeout_sec=0.05)
@@ -74,14 +78,11 @@ def late_client_times_s(n: int) -> list[float]:
     """Seconds to the first tip reading for ``n`` programs started one after another once the node is up (the usual
     order: the rig runs, then an operator or a subscriber joins), each a process of its own
     (``python -m panel_rig.ros.first_reading``)."""
-    domain = random.randint(150, 199)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    panel_rig = Path(sys.executable).parent / "panel-rig"
+    _, env, node_cmd = _node_env()
     times = []
     with tempfile.TemporaryDirectory() as log_dir:
         env["ROS_LOG_DIR"] = log_dir
-        proc = subprocess.Popen([str(panel_rig), "run", "--ros-args", "-r", "__ns:=/rig"], env=env,
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        proc = subprocess.Popen(node_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             for line in proc.stdout:
                 if "panel_rig up" in line:

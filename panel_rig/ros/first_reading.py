@@ -32,10 +32,12 @@ def first_reading_s(namespace: str, timeout_s: float) -> float | None:
                                  qos_profile_sensor_data)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while not got and time.monotonic() - t0 < timeout_s:
-            executor.spin_once(timeout_sec=0.01)
-        executor.shutdown()
-        node.destroy_node()
+        try:
+            while not got and time.monotonic() - t0 < timeout_s:
+                executor.spin_once(timeout_sec=0.01)
+        finally:  # a Ctrl-C while spinning: the node and executor are released before the context
+            executor.shutdown()
+            node.destroy_node()
         return got[0] - t0 if got else None
     finally:
         rclpy.shutdown()

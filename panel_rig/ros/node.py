@@ -87,6 +87,7 @@ class RigNode(Node):
     def __init__(self, *, stepper_factory: StepperFactory | None = None, **node_kwargs: Any) -> None:
         super().__init__(NODE_NAME, **node_kwargs)
         self._table = parameter_table()
+        self._startup_warnings: list[str] = []  # found while reading the parameters, logged once the node can start
         self.cfg, p = self._read_parameters()
         self.fast: bool = p["fast"]
         limits = SafetyLimits(**{f: p[k] for k, f in LIMIT_FIELDS.items()})
@@ -209,7 +210,6 @@ class RigNode(Node):
         if problems:
             raise StartupError("invalid parameters: " + "; ".join(problems))
         unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})
-        self._startup_warnings: list[str] = []  # logged once the node can start (see __init__)
         if unknown:
             self._startup_warnings.append(f"ignoring unknown parameters: {', '.join(unknown)}")
         node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
