@@ -309,6 +309,9 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append("flutter onset: no plateau was unstable"
                      + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
                      + f"; extrapolated from decay rates: {extrapolated}")
+    elif o["bracket_low_mps"] is None:  # "bracket 0.00 .. 12.00" (the tunnel at rest) read as a lower bound
+        lines.append(f"flutter onset: at or below {num(o['bracket_high_mps'])} m/s (no stable plateau with the wind "
+                     f"on before it); extrapolated from decay rates: {extrapolated}")
     else:
         low, high = num(o["bracket_low_mps"]), num(o["bracket_high_mps"])
         if low == high:  # two plateaus at one nominal airspeed ("9.00 .. 9.00"): the digits that tell them apart

@@ -503,7 +503,14 @@ def test_onset_interpolates_only_from_a_measured_decay() -> None:
         return {"airspeed_mps": u, "status": status, "t_start_s": t0, "t_end_s": t0 + 8.0, "growth_rate_per_s": rate}
 
     quiet = estimate_onset([p(0.0, "quiet", 0, -0.001), p(11.0, "growing", 10, 0.3)])
-    assert quiet["bracket_low_mps"] == 0.0 and quiet["interpolated_mps"] is None
+    # nor is the tunnel at rest a lower bound of the onset (the table said "bracket 0.00 .. 11.00 m/s")
+    assert quiet["bracket_low_mps"] is None and quiet["bracket_high_mps"] == 11.0 and quiet["interpolated_mps"] is None
+    from panel_rig.analyze_cli import format_table
+
+    result = {"bag": "b", "duration_s": 18.0, "samples": 9000, "panel_length_m": 0.27, "panel_length_source": "bag",
+              "plateaus": [], "onset": quiet}
+    assert format_table(result).splitlines()[-1].startswith(
+        "flutter onset: at or below 11.00 m/s (no stable plateau with the wind on before it); extrapolated")
     decaying = estimate_onset([p(10.0, "decaying", 0, -0.1), p(11.0, "growing", 10, 0.3)])
     assert decaying["interpolated_mps"] == pytest.approx(10.25)
 

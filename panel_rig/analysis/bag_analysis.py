@@ -301,14 +301,17 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
 
 # ---------------------------------------------------------------------------------- onset
 def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) -> dict[str, Any]:
-    """Bracket (last decaying, first unstable) and the linear extrapolation of decay rate to zero."""
+    """Bracket (the fastest stable plateau with the wind on before the first unstable one, and that unstable one;
+    ``bracket_low_mps`` None when there is none) and the linear extrapolation of decay rate to zero."""
     unstable = [p for p in plateaus if p["status"] in ("lco", "growing")]
     first_lco = next((p for p in plateaus if p["status"] == "lco"), None)
     upper = unstable[0] if unstable else None
     u_hi = upper["airspeed_mps"] if upper else math.inf
     # stable plateaus (decaying, or at rest) below the first unstable one, taken before it in time: after an
-    # LCO has started, a subcritical system can stay in LCO below the flutter speed (hysteresis)
-    stable = [p for p in plateaus if p["status"] in STABLE and p["airspeed_mps"] < u_hi]
+    # LCO has started, a subcritical system can stay in LCO below the flutter speed (hysteresis); with the wind on
+    # (a tunnel at rest bounds nothing: "bracket 0.00 .. 12.00 m/s" after a first point that fluttered)
+    stable = [p for p in plateaus if p["status"] in STABLE
+              and crit.min_extrapolation_airspeed_mps < p["airspeed_mps"] < u_hi]
     before = [p for p in stable if upper is None or p["t_end_s"] <= upper["t_start_s"]]
     lower = max(before, key=lambda p: p["airspeed_mps"], default=None)
     below = [p for p in before if p["status"] == "decaying"]
