@@ -530,6 +530,79 @@ def test_start_up_warnings_are_said_once_the_node_can_start(ros_env: dict[str, s
     assert 0 < out.index("safety.max_tip_w_over_L = 2 is not below the model's divergence bound") < said, out[-2000:]
 
 
+class _Log:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def error(self, text: str, **_: Any) -> None:
+        self.lines.append(text)
+
+
+class _Recorder:
+    def __init__(self, bag_dir: Path) -> None:
+        self.bag_dir, self.writes, self.closed = bag_dir, 0, False
+
+    def write(self) -> None:
+        assert not self.closed
+        self.writes += 1
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_the_recording_stops_intact_at_the_free_space_reserve(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A fast node left recording filled 76 GB of /tmp (2026-12-05). Below ``record_min_free_mb`` of free space the
+    recorder is closed (its bag intact, not cut by a full disk), the state reads "stopped" and the reason is
+    logged once; the free space is looked at every SPACE_CHECK_PERIOD_S of wall time, not at every write."""
+    from panel_rig.ros import publishing
+    from panel_rig.ros.flutter_client import recording_failure
+
+    free = {"bytes": 900e6}
+    looked: list[Path] = []
+
+    def free_space(path: Path) -> int:
+        looked.append(path)
+        return int(free["bytes"])
+
+    clock = {"s": 100.0}
+    monkeypatch.setattr(publishing.time, "monotonic", lambda: clock["s"])
+    log, rec = _Log(), _Recorder(tmp_path)
+    recording = publishing.Recording(log, min_free_bytes=500e6, free_space=free_space)
+    recording.recorders.append(rec)
+    for _ in range(3):  # one look within a period
+        recording.record(lambda r: r.write())
+    assert rec.writes == 3 and len(looked) == 1 and recording.state == "on"
+    free["bytes"] = 400e6
+    recording.record(lambda r: r.write())  # not looked at again yet
+    assert rec.writes == 4 and not rec.closed
+    clock["s"] += publishing.SPACE_CHECK_PERIOD_S
+    recording.record(lambda r: r.write())
+    assert rec.closed and rec.writes == 4 and recording.state == "stopped" and not recording.active
+    assert log.lines == [f"the free space under {tmp_path} fell to 400 MB, below record_min_free_mb = 500: the "
+                         "recording stopped there and its bag was closed intact"]
+    # the flutter test's client stops on it, without sending the user to `bag recover`
+    why = recording_failure({"recording": recording.state, "last_recording_error": recording.last_error})
+    assert why is not None and why.startswith("the rig node's recording stopped (the free space") and "recover" not in why
+
+
+def test_a_node_below_its_free_space_reserve_closes_its_bag_and_runs_on(ros_env: dict[str, str],
+                                                                        tmp_path: Path) -> None:
+    """The whole node: a reserve no disk has (1e9 MB) stops the recording at once; the node runs on and stops
+    cleanly, and the bag it leaves is intact (verify_bag: no `bag recover` needed)."""
+    from panel_rig.recording.reader import verify_bag
+
+    proc = _start(ros_env, "record:=true", f"bag_dir:={tmp_path}", "record_min_free_mb:=1e9")
+    try:
+        out = _output_until(proc, "its bag was closed intact", 120.0)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out += proc.communicate(timeout=30)[0]
+    assert proc.returncode == 0, out[-2000:]
+    assert "below record_min_free_mb = 1e+09: the recording stopped there" in out, out[-2000:]
+    bag = next(tmp_path.glob("rig_*"))
+    assert verify_bag(bag).ok
+
+
 @pytest.mark.parametrize("params, says", [
     (("record:=true", "bag_dir:=/proc/no_such_dir"), "cannot record in '/proc/no_such_dir'"),
     (("rerun:=save:/proc/no_such_dir/x.rrd",), "cannot open the Rerun sink 'save:/proc/no_such_dir/x.rrd'"),

@@ -82,13 +82,16 @@ def diagnostic_values(rig: Rig, recording: Recording, *, fast: bool, rtf: float,
     }
 
 
-def diagnostic_level(rig: Rig, rejected_now: int, record_errors_now: int, last_record_error: str) -> tuple[bytes, str]:
-    """(level, message): aborted, else the recording failing since the last status, else commands rejected since
-    then, else OK with the rig's state."""
+def diagnostic_level(rig: Rig, rejected_now: int, record_errors_now: int, last_record_error: str,
+                     recording_stopped: str = "") -> tuple[bytes, str]:
+    """(level, message): aborted, else the recording failing since the last status, else the recording stopped at
+    the free-space reserve, else commands rejected since then, else OK with the rig's state."""
     if rig.state == ABORTED:
         return DiagnosticStatus.ERROR, f"aborted: {rig.abort_reason}"
     if record_errors_now:
         return DiagnosticStatus.ERROR, f"recording failed: {last_record_error}"
+    if recording_stopped:
+        return DiagnosticStatus.ERROR, f"recording stopped: {recording_stopped}"
     if rejected_now:
         return DiagnosticStatus.WARN, f"{rejected_now} command(s) rejected: {rig.last_rejection}"
     return DiagnosticStatus.OK, rig.state

@@ -195,9 +195,12 @@ class FlutterTestClient(Node):
 def recording_failure(diagnostics: dict[str, str]) -> str | None:
     """Why the test stops when the node's /diagnostics say its recording failed (a full disk: the node runs on and
     says so, and a test going on would record nothing); None while it records."""
-    if diagnostics.get("recording") != "failed":
-        return None
+    state = diagnostics.get("recording")
     why = diagnostics.get("last_recording_error") or "?"
+    if state == "stopped":  # at the node's free-space reserve: the bag is whole up to there
+        return f"the rig node's recording stopped ({why}); the test stopped there"
+    if state != "failed":
+        return None
     return (f"the rig node's recording failed ({why}); the test stopped there. Free some space, then "
             "`panel-rig bag recover` on the run's rig_* bag rebuilds what was written")
 

@@ -117,7 +117,7 @@ class RigNode(Node):
         self._max_lag_s = p["max_lag_s"]
         self.fast_max_rtf: float = p["fast_max_realtime_factor"]
         self._names = [f"q{i + 1}" for i in range(len(np.atleast_1d(stepper.q)))]
-        self.recording = Recording(self.get_logger())
+        self.recording = Recording(self.get_logger(), min_free_bytes=p["record_min_free_mb"] * 1e6)
         self._topic_prefix = self.get_namespace().rstrip("/")
         self._open_sinks(p)  # before the clock starts: opening a recording or a viewer takes time
         # said once the model and the sinks are up: before a start-up error they read as if the node were starting,
@@ -563,7 +563,8 @@ class RigNode(Node):
         self._diag_rejected = rig.rejected_count
         record_errors_now = recording.errors - self._diag_record_errors
         self._diag_record_errors = recording.errors
-        level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error)
+        level, message = diagnostic_level(rig, rejected_now, record_errors_now, recording.last_error,
+                                          recording.stopped)
         dropped = self._rerun.dropped_batches if self._rerun is not None else 0
         values["viewer_dropped_batches"] = dropped
         if dropped > self._diag_viewer_dropped:  # a live viewer that stopped taking data: said while it happens,

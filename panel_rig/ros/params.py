@@ -128,6 +128,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                     "latency added to each command's arrival, s", 0.0, 1.0),
     "record": NodeParam(False, False, _bool, "record a rosbag2 MCAP of every topic and command"),
     "bag_dir": NodeParam("bags", False, _string, "directory for recordings"),
+    "record_min_free_mb": _number(500.0, False, "free space kept under bag_dir: below it the recording stops, its "
+                                  "bag closed intact (0: record until the disk is full), MB", 0.0, 1e9),
     "rerun": NodeParam("none", False, _rerun, "Rerun sink: none | save:PATH | connect:URL"),
     "flutter_monitor": NodeParam(False, False, _bool, "identify each airspeed plateau of the measured tip and "
                                  "publish flutter_monitor (DiagnosticArray: damping, predicted U_f, margin)"),

@@ -12,6 +12,8 @@ of each and gives them its publishers; topics and QoS stay declared in :mod:`pan
 from __future__ import annotations
 
 import inspect
+import shutil
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -27,14 +29,30 @@ from panel_rig.ros import messages
 SHAPE_POINTS = 31  # points of the panel's drawn shape (panel_shape, the viewer's strip)
 
 
-class Recording:
-    """The node's recorders: every write goes to each; the topic a publisher's messages are recorded under."""
+#: wall seconds between checks of the free space under a recording (fast mode writes ~25 MB a second)
+SPACE_CHECK_PERIOD_S = 0.5
 
-    def __init__(self, logger: Any) -> None:
+
+def free_bytes(path: Any) -> int:
+    """Free bytes for an unprivileged writer on the file system of ``path``."""
+    return shutil.disk_usage(path).free
+
+
+class Recording:
+    """The node's recorders: every write goes to each; the topic a publisher's messages are recorded under.
+    ``min_free_bytes`` (the ``record_min_free_mb`` parameter; 0: none): a recorder whose file system has less free
+    space than that is closed, its bag intact, before the disk is full (a fast node left running filled 76 GB)."""
+
+    def __init__(self, logger: Any, min_free_bytes: float = 0.0,
+                 free_space: Callable[[Any], int] = free_bytes) -> None:
         self.recorders: list[Any] = []
         self.topics: dict[Any, str] = {}  # publisher -> full topic name (namespace included)
         self.errors = 0
         self.last_error = ""
+        self.stopped = ""  # why the recording was stopped short of a full disk ("": it was not)
+        self.min_free_bytes = float(min_free_bytes)
+        self._free_space = free_space
+        self._next_space_check = 0.0
         self._log = logger
 
     @property
@@ -43,12 +61,17 @@ class Recording:
 
     @property
     def state(self) -> str:
-        """"off" (nothing recorded), "on", or "failed" (a write has failed)."""
-        return ("failed" if self.errors else "on") if self.recorders else "off"
+        """"off" (nothing recorded), "on", "failed" (a write has failed) or "stopped" (closed at the free-space
+        reserve: the bag is intact)."""
+        if self.errors:
+            return "failed"
+        return "stopped" if self.stopped else "on" if self.recorders else "off"
 
     def record(self, write: Callable[[Any], Any]) -> None:
         """``write(recorder)`` for every recorder. A failure (a full disk) is logged, counted and shown in
         /diagnostics (level ERROR while it goes on); the rig carries on."""
+        if self.min_free_bytes > 0 and self.recorders:
+            self._keep_free_space()
         for rec in self.recorders:
             try:
                 write(rec)
@@ -56,6 +79,32 @@ class Recording:
                 self.errors += 1
                 self.last_error = str(exc)
                 self._log.error(f"recording failed: {exc}", throttle_duration_sec=5.0)
+
+    def _keep_free_space(self) -> None:
+        """Close (intact) each recorder whose file system has fallen below ``min_free_bytes`` free (checked every
+        SPACE_CHECK_PERIOD_S of wall time)."""
+        now = time.monotonic()
+        if now < self._next_space_check:
+            return
+        self._next_space_check = now + SPACE_CHECK_PERIOD_S
+        for rec in list(self.recorders):
+            try:
+                free = self._free_space(rec.bag_dir)
+            except OSError:
+                continue  # not knowable now: the write itself says if the disk is full
+            if free >= self.min_free_bytes:
+                continue
+            self.recorders.remove(rec)
+            self.stopped = (f"the free space under {rec.bag_dir} fell to {free / 1e6:.0f} MB, below "
+                            f"record_min_free_mb = {self.min_free_bytes / 1e6:g}: the recording stopped there and "
+                            "its bag was closed intact")
+            self.last_error = self.stopped
+            try:
+                rec.close()
+            except Exception as exc:  # noqa: BLE001
+                self.errors += 1
+                self.last_error = f"closing the recording failed: {exc}"
+            self._log.error(self.last_error)
 
     def close(self) -> None:
         """Close every recorder (idempotent); a failure is logged."""
