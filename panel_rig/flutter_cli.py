@@ -335,27 +335,31 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
 
 #: bytes the in-process test's bag takes per tip sample (the measured and true tip, the airspeed; 7.66 MB for 50 s
-#: at 512 samples/s, 2026-12-05)
+#: at 512 samples/s, 2026-12-05; the default paper test's 156.3 MB for 524 800 samples, 298 B, 2026-12-06)
 BAG_BYTES_PER_SAMPLE = 300
 #: the same for the live node's bag, which records every topic of the node (the modal states and the panel shape
-#: too; 4.18 MB for 7044 samples, 2026-12-05)
+#: too; 4.18 MB for 7044 samples, 2026-12-05; the default paper test's 323.6 MB for 524 800 samples, 617 B,
+#: 2026-12-06)
 LIVE_BAG_BYTES_PER_SAMPLE = 600
 
 
 def disk_warning(bag_dir: Path, settings: Any, sample_dt_s: float,
-                 bytes_per_sample: float = BAG_BYTES_PER_SAMPLE) -> str | None:
+                 bytes_per_sample: float = BAG_BYTES_PER_SAMPLE, reserve_bytes: float = 0.0) -> str | None:
     """A warning when the test's longest course (every point's settle and dwell) could record more than the disk
-    under ``bag_dir`` has free; None when it fits."""
+    under ``bag_dir`` has free (less ``reserve_bytes``: the live node stops recording at its ``record_min_free_mb``);
+    None when it fits."""
     import shutil
 
     longest_s = settings.max_points * (settings.settle_s + settings.dwell_s)
     need = bytes_per_sample * longest_s / sample_dt_s
     free = shutil.disk_usage(bag_dir).free
-    if need <= free:
+    if need <= free - reserve_bytes:
         return None
+    stops = (f"the node stops recording, and the test, with {reserve_bytes / 1e6:.0f} MB left" if reserve_bytes > 0
+             else "a full disk stops the test")
     return (f"warning: {settings.max_points} test points of {settings.settle_s + settings.dwell_s:g} s could "
-            f"record about {need / 1e6:.0f} MB; {bag_dir} has {free / 1e6:.0f} MB free (a full disk stops the test, "
-            "the bag written so far kept)")
+            f"record about {need / 1e6:.0f} MB; {bag_dir} has {free / 1e6:.0f} MB free ({stops}, the bag written so "
+            "far kept)")
 
 
 def close_recording(writer: Any, bag_sink: BagSink | None) -> None:

@@ -719,6 +719,11 @@ def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path,
     text = flutter_cli.disk_warning(tmp_path, settings, 1 / 512)
     assert text == (f"warning: {n} test points of 1005 s could record about {need_mb:.0f} MB; "
                     f"{tmp_path} has 3 MB free (a full disk stops the test, the bag written so far kept)")
+    # the live node stops recording at its record_min_free_mb: that much of the free space is not the test's
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(1e13, 0, 1e6 * need_mb * 1.01))
+    text = flutter_cli.disk_warning(tmp_path, settings, 1 / 512, reserve_bytes=500e6)
+    assert text is not None and text.endswith("(the node stops recording, and the test, with 500 MB left, the bag "
+                                              "written so far kept)"), text
 
 
 @pytest.mark.parametrize(("option", "value", "message"), [

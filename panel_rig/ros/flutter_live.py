@@ -105,8 +105,10 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
                           run_dir if bag_dir is not None else None, rerun)
     if bag_dir is not None:
         from panel_rig.flutter_cli import LIVE_BAG_BYTES_PER_SAMPLE, disk_warning
+        from panel_rig.ros.params import NODE_PARAMS
 
-        short = disk_warning(run_dir, settings, 1.0 / prm["publish_rate_hz"], LIVE_BAG_BYTES_PER_SAMPLE)
+        short = disk_warning(run_dir, settings, 1.0 / prm["publish_rate_hz"], LIVE_BAG_BYTES_PER_SAMPLE,
+                             NODE_PARAMS["record_min_free_mb"].default * 1e6)
         if short is not None and progress is not None:
             progress(short)
     params_file = run_dir / "node_params.yaml"
