@@ -770,6 +770,41 @@ def test_a_bag_written_out_of_time_order_is_read_in_time_order(tmp_path: Path) -
     assert rec.commands["airspeed_cmd"] == [(stamps[20] * 1e-9, 6.0)]
 
 
+def test_a_bag_is_checked_and_read_in_one_pass_and_a_damaged_one_still_refused(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """load_series parsed every chunk twice (the integrity scan, then the read: half of `analyze` on a flutter
+    test's 156 MB bag). It now takes the messages as the scan parses each chunk, once; a chunk damaged after the
+    ones it took still refuses the bag (CorruptBagError, naming `bag recover`), with nothing half-read returned."""
+    import numpy as np
+
+    from panel_rig.recording import integrity, reader
+    from panel_rig.recording.errors import CorruptBagError
+    from panel_rig.recording.series import load_series
+
+    bag_dir = tmp_path / "bag"
+    with BagWriter(bag_dir, chunk_size_bytes=512) as writer:  # several chunks
+        for k in range(1, 41):
+            tip, air = PointStamped(), Vector3Stamped()
+            tip.point.z, air.vector.x = k * 1e-3, 5.0
+            writer.write("/rig/tip_displacement", tip, k * 2_000_000)
+            writer.write("/rig/airspeed", air, k * 2_000_000)
+    parsed = []
+    real = integrity.chunk_records
+    monkeypatch.setattr(integrity, "chunk_records", lambda data: parsed.append(1) or real(data))
+    monkeypatch.setattr(reader, "chunk_records", lambda data: parsed.append(1) or real(data))
+    rec = load_series(bag_dir)
+    chunks = len(reader.verify_bag(bag_dir).chunks)
+    assert chunks > 2 and len(parsed) == 2 * chunks  # once by load_series, once by the verify_bag just above
+    np.testing.assert_allclose(rec.tip_w_over_L * rec.panel_length_m, np.arange(1, 41) * 1e-3)
+    mcap = next(bag_dir.glob("*.mcap"))
+    raw = bytearray(mcap.read_bytes())
+    last = reader.verify_bag(bag_dir).chunks[-1]
+    raw[last.offset + last.length - 20] ^= 0xFF  # inside the last chunk's records: its CRC no longer matches
+    mcap.write_bytes(bytes(raw))
+    with pytest.raises(CorruptBagError, match="bag recover"):
+        load_series(bag_dir)
+
+
 def test_a_bag_that_cannot_be_finished_closes_its_file_and_releases_its_lock(tmp_path: Path) -> None:
     """A full disk fails the summary's write: the file was left open (and its lock taken) when `close` raised."""
     import errno

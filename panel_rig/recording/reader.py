@@ -93,44 +93,82 @@ def read_bag(
             yield channel.topic, schema.name if schema else "", message.log_time, decoded
 
 
-def read_bag_raw(bag_dir: Path, topics: list[str] | None = None
-                 ) -> Iterator[tuple[str, str, int, bytes, Callable[[bytes], Any]]]:
+#: what a raw reader yields per message: (topic, type, stamp_ns, CDR bytes, decode)
+RawMessage = tuple[str, str, int, bytes, Callable[[bytes], Any]]
+
+
+class ChunkMessages:
+    """The messages of the wanted ``topics`` (None: all) among a chunk's records, as :data:`RawMessage`; the schema
+    and channel records met on the way are kept for the messages that follow them (MCAP writes them first)."""
+
+    def __init__(self, path: Path, topics: list[str] | None = None, channels: dict[int, Channel] | None = None,
+                 schemas: dict[int, Schema] | None = None) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
+        self.path, self.topics = path, topics
+        self.channels, self.schemas = dict(channels or {}), dict(schemas or {})
+        self._factory = DecoderFactory()
+        self._decoders: dict[int, Callable[[bytes], Any]] = {}  # per channel: a lookup per message took a sixth
+
+    def __call__(self, records: list[Any]) -> Iterator[RawMessage]:
+        for record in records:
+            if isinstance(record, Schema):
+                self.schemas[record.id] = record
+            elif isinstance(record, Channel):
+                self.channels[record.id] = record
+            elif self.topics is None or self.channels[record.channel_id].topic in self.topics:
+                channel = self.channels[record.channel_id]
+                schema = self.schemas.get(channel.schema_id)
+                decode = self._decoders.get(record.channel_id)
+                if decode is None:
+                    decode = self._decoders[record.channel_id] = _decoder(self._factory, channel, schema, self.path)
+                yield (channel.topic, schema.name if schema else "", record.log_time, record.data, decode)
+
+
+def read_bag_raw(bag_dir: Path, topics: list[str] | None = None) -> Iterator[RawMessage]:
     """Yield (topic, type, stamp_ns, CDR bytes, decode) in the file's order (not sorted by log time: the caller
     sorts), for a bag :func:`verify_bag` has just checked (chunk CRCs are not checked again). ``decode(bytes)`` is the
     mcap-ros2 decoder of the message's type, for what the caller does not read itself. Errors as :func:`read_bag`.
 
     The chunks are found through the summary's chunk index and their records read by
     :func:`~panel_rig.recording.integrity.chunk_records`: mcap's record parser and its merge into log-time order
-    took two thirds of reading a flutter test's bag. A file without chunk index is read by mcap's own reader."""
+    took two thirds of reading a flutter test's bag. A file without chunk index is read by mcap's own reader.
+    :func:`read_verified` checks and reads in one pass."""
     from mcap_ros2.decoder import DecoderFactory
 
     path = find_mcap(bag_dir)
-    factory = DecoderFactory()
     with _reading(bag_dir, path), open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=False)
         summary = reader.get_summary()
         if summary is None or not summary.chunk_indexes:
+            factory = DecoderFactory()
             for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
                 yield (channel.topic, schema.name if schema else "", message.log_time, message.data,
                        _decoder(factory, channel, schema, path))
             return
-        channels, schemas = dict(summary.channels), dict(summary.schemas)
-        decoders: dict[int, Callable[[bytes], Any]] = {}  # per channel: a lookup per message took a sixth
+        messages = ChunkMessages(path, topics, dict(summary.channels), dict(summary.schemas))
         for index in summary.chunk_indexes:
             f.seek(index.chunk_start_offset + 9)
             stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)), validate_crc=False)
-            for record in chunk_records(stream.read(size)):
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif topics is None or channels[record.channel_id].topic in topics:
-                    channel = channels[record.channel_id]
-                    schema = schemas.get(channel.schema_id)
-                    decode = decoders.get(record.channel_id)
-                    if decode is None:
-                        decode = decoders[record.channel_id] = _decoder(factory, channel, schema, path)
-                    yield (channel.topic, schema.name if schema else "", record.log_time, record.data, decode)
+            yield from messages(chunk_records(stream.read(size)))
+
+
+def read_verified(bag_dir: Path, topics: list[str] | None, take: Callable[[RawMessage], None]) -> bool:
+    """:func:`verify_bag` and :func:`read_bag_raw` in one pass over the file: ``take(message)`` for each message of
+    ``topics`` (None: all) in the file's order, as the integrity scan parses its chunk (each chunk was parsed twice,
+    half of reading a flutter test's bag). Raises as :func:`verify_bag` after the scan: what ``take`` got from a bag
+    found damaged must be dropped. False for an intact file with messages outside chunks (not the rig writer's):
+    ``take`` did not get those, and the caller reads the file with :func:`read_bag_raw` instead."""
+    path = find_mcap(bag_dir)
+    messages = ChunkMessages(path, topics)
+
+    def on_chunk(records: list[Any]) -> None:
+        for message in messages(records):
+            take(message)
+
+    with _reading(bag_dir, path):
+        scan = verify_bag(bag_dir, on_chunk)
+    return not scan.loose_messages
 
 
 def _decoder(factory: Any, channel: Channel, schema: Schema | None, path: Path) -> Callable[[bytes], Any]:
@@ -160,15 +198,15 @@ def _reading(bag_dir: Path, path: Path) -> Iterator[None]:
         ) from None
 
 
-def verify_bag(bag_dir: Path) -> McapScan:
+def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any]], None] | None = None) -> McapScan:
     """Scan the bag's MCAP (every chunk CRC, summary, index); raise CorruptBagError if not intact.
 
     The error is one line: the first problem (chunk index, byte offset, time range), how many more,
     and the `panel-rig bag recover` command that rebuilds the bag from its intact chunks; for a bag whose
-    lock is held (still being recorded), BagInUseError saying so.
+    lock is held (still being recorded), BagInUseError saying so. ``on_chunk``: as :func:`scan_mcap`'s.
     """
     path = find_mcap(bag_dir)
-    scan = scan_mcap(path)
+    scan = scan_mcap(path, on_chunk)
     if not scan.ok:
         _refuse_live(bag_dir)
         if not scan.recoverable:  # `bag recover` would refuse it too: no header and no chunk to rebuild from

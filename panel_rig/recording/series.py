@@ -21,7 +21,14 @@ from panel_rig.config import PanelConfig
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.fast_cdr import joint_positions, point_z, vector_x
 from panel_rig.recording.metadata import read_metadata
-from panel_rig.recording.reader import read_bag_raw, read_metadata_records, summary_counts, verify_bag
+from panel_rig.recording.reader import (
+    find_mcap,
+    read_bag_raw,
+    read_metadata_records,
+    read_verified,
+    summary_counts,
+    verify_bag,
+)
 from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
 from panel_rig.topics import FLUTTER_MONITOR_TOPIC as MONITOR_TOPIC
 from panel_rig.topics import REJECTED_SUFFIX, RIG_STATUS_NAME
@@ -93,14 +100,72 @@ def open_bag(bag_dir: Path) -> tuple[Path, dict[str, str], dict[str, int]]:
     if not bag_dir.exists():
         raise RecordingError(f"{bag_dir}: no such bag directory")
     mcap_path = verify_bag(bag_dir).path
-    counts = summary_counts(mcap_path)
+    return (mcap_path, *_checked_topics(bag_dir, summary_counts(mcap_path)))
+
+
+def _checked_topics(bag_dir: Path, counts: dict[str, int]) -> tuple[dict[str, str], dict[str, int]]:
+    """(topics, refused commands) of an intact bag's message counts; RecordingError for a bag with no messages or
+    no tip topic."""
     topics = _topics(list(counts))
     if not any(counts.values()):  # a node stopped before its first step (a fast node waits for its first command)
         raise RecordingError(f"{bag_dir} holds no messages: the rig stopped before it ran a step")
     if "tip_displacement" not in topics:
         raise RecordingError(f"{bag_dir} has no tip_displacement topic: not a rig recording")
     refused = {n[: -len(REJECTED_SUFFIX)]: c for n, c in counts.items() if n.endswith(REJECTED_SUFFIX)}
-    return mcap_path, topics, refused
+    return topics, refused
+
+
+class _Messages:
+    """What :func:`load_series` takes of a bag's messages, in the file's order (sorted by time at the end: the
+    reader's merge of the chunks into log-time order took a fifth of the time, and the rig writes in time order
+    anyway): the readings in flat arrays (8 bytes a number: a list of tuples took ~60 bytes a number, and an hour at
+    500 Hz is 1.8 million samples of each topic), the few others decoded."""
+
+    def __init__(self, by_name: dict[str, str]) -> None:
+        self.by_name = by_name  # full topic name -> kind (its suffix)
+        self.tip, self.air, self.modal = _Series(), _Series(), _ModalRows()
+        self.events: list[tuple[int, str, Any]] = []  # (stamp_ns, kind, decoded message)
+        self._fast = {"tip_displacement": (point_z, self.tip), "airspeed": (vector_x, self.air),
+                      "modal_states": (joint_positions, self.modal)}
+
+    def take(self, message: tuple[str, str, int, bytes, Any]) -> None:
+        topic, _, stamp_ns, data, decode = message
+        kind = self.by_name[topic]
+        if kind in self._fast:
+            read, series = self._fast[kind]
+            value = read(data)
+            if value is None:  # not little-endian CDR: the general decoder
+                msg = decode(data)
+                value = msg.point.z if kind == "tip_displacement" else msg.vector.x if kind == "airspeed" else msg.position
+            series.append(stamp_ns, value)
+        else:
+            self.events.append((stamp_ns, kind, decode(data)))
+
+
+def _wanted(topics: dict[str, str], shapes: bool) -> dict[str, str]:
+    return {v: k for k, v in topics.items() if k != "panel_shape" or shapes}
+
+
+def _read_messages(bag_dir: Path, shapes: bool) -> tuple[Path, dict[str, str], dict[str, int], _Messages]:
+    """(mcap path, topics, refused commands, messages) of an intact rig bag, checked and read in one pass
+    (:func:`~panel_rig.recording.reader.read_verified`) when its summary names the topics; else checked first, then
+    read (a bag without a readable summary is refused by the check)."""
+    if not bag_dir.exists():
+        raise RecordingError(f"{bag_dir}: no such bag directory")
+    mcap_path = find_mcap(bag_dir)
+    try:
+        counts = summary_counts(mcap_path)
+    except Exception:  # noqa: BLE001 - a damaged summary: the check below says what is wrong
+        counts = None
+    if counts is not None:
+        got = _Messages(_wanted(_topics(list(counts)), shapes))
+        if read_verified(bag_dir, list(got.by_name), got.take):
+            return (mcap_path, *_checked_topics(bag_dir, counts), got)
+    mcap_path, topics, refused = open_bag(bag_dir)
+    got = _Messages(_wanted(topics, shapes))
+    for message in read_bag_raw(bag_dir, topics=list(got.by_name)):
+        got.take(message)
+    return mcap_path, topics, refused, got
 
 
 #: stamps beyond this (about 11.6 days) are wall-clock (real-time mode); fast-mode bags carry simulated time from 0
@@ -114,28 +179,11 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     Raises RecordingError (CorruptBagError for a damaged bag) with a one-line message.
     """
     bag_dir = Path(bag_dir)
-    mcap_path, topics, refused = open_bag(bag_dir)
+    mcap_path, topics, refused, got = _read_messages(bag_dir, shapes)
     params = _parameters(bag_dir, mcap_path)
     length = params.get("panel.length_m")
     ok_length = isinstance(length, (int, float)) and not isinstance(length, bool) and length > 0
-    by_name = {v: k for k, v in topics.items() if k != "panel_shape" or shapes}
-    # the readings in flat arrays (8 bytes a number): a list of tuples took ~60 bytes a number, and an hour at 500 Hz
-    # is 1.8 million samples of each topic. Read in the file's order and sorted by time at the end: the reader's merge
-    # of the chunks into log-time order took a fifth of the time, and the rig writes in time order anyway
-    tip, air, modal = _Series(), _Series(), _ModalRows()
-    events: list[tuple[int, str, Any]] = []  # (stamp_ns, kind, decoded message): the few others
-    fast = {"tip_displacement": (point_z, tip), "airspeed": (vector_x, air), "modal_states": (joint_positions, modal)}
-    for topic, _, stamp_ns, data, decode in read_bag_raw(bag_dir, topics=list(by_name)):
-        kind = by_name[topic]
-        if kind in fast:
-            read, series = fast[kind]
-            value = read(data)
-            if value is None:  # not little-endian CDR: the general decoder
-                msg = decode(data)
-                value = msg.point.z if kind == "tip_displacement" else msg.vector.x if kind == "airspeed" else msg.position
-            series.append(stamp_ns, value)
-        else:
-            events.append((stamp_ns, kind, decode(data)))
+    tip, air, modal, events = got.tip, got.air, got.modal, got.events
     if len(tip) < 16:
         raise RecordingError(f"{bag_dir}: only {len(tip)} tip_displacement samples, too few to analyse")
     events.sort(key=lambda e: e[0])
