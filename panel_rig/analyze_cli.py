@@ -136,15 +136,16 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     # (a flutter test's, whose node holds after each point: only the windows it completed; a test stopped during a
     # dwell took no point there, though the node identifies a cut plateau of the minimum dwell)
     flutter_test = monitored and rec.parameters.get("flutter_test.hold") is True
+    skipped: list[str] = []
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
                            rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps,
-                           complete_only=flutter_test and "dwell_s" in window, **window)
+                           complete_only=flutter_test and "dwell_s" in window, skipped=skipped, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
                            "prediction_method": None, "margin": None, "required_margin": margin}
     if not points:
-        out["no_test_point_reason"] = no_point_reason(float(rec.t_s[-1]) if rec.t_s.size else 0.0, cmds, **window)
+        out["no_test_point_reason"] = no_point_reason(skipped, window.get("settle_s", 5.0))
     d = None
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))

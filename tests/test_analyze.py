@@ -767,14 +767,20 @@ def test_a_bag_without_test_points_says_why() -> None:
     """`analyze` on a demo bag printed no flutter-test replay and did not say why (no plateau had 20 s after its
     5 s run-in). The replay now names the reason, in the table and the JSON."""
     from panel_rig.analysis.bag_analysis import estimate_onset
-    from panel_rig.analysis.flutter_test import no_point_reason
+    from panel_rig.analysis.flutter_test import no_point_reason, replay_points
     from panel_rig.analyze_cli import format_table
 
-    short = no_point_reason(30.0, [(0.0, 5.0), (10.0, 6.0)])  # windows 5-10 s (5 s) and 15-30 s (15 s)
-    assert short == "a test point needs 20 s of a plateau after its 5 s run-in; the longest here has 15.0 s"
-    assert no_point_reason(30.0, [(0.0, 0.0)]) == "no airspeed plateau above 0 m/s"
-    assert no_point_reason(40.0, [(0.0, 5.0)]).startswith("no plateau of 20 s after its run-in qualified")
-    assert "the longest here has 20.0 s" not in no_point_reason(25.0, [(0.0, 5.0)])  # exactly 20 s is enough
+    t = np.arange(0, 60.0, 1 / 512)
+    y = 1e-6 * np.random.default_rng(0).standard_normal(t.size)
+    y[t >= 35.0] = 0.05 * np.sin(2 * np.pi * 20 * t[t >= 35.0])  # the last plateau flutters (past 2 % of L)
+    skipped = []
+    # plateaus: 5 m/s for 10 s (5 s after the run-in), 6 m/s for 20 s (15 s), 7 m/s for 30 s (25 s, fluttered)
+    assert replay_points(t, y, [(0.0, 5.0), (10.0, 6.0), (30.0, 7.0)], lambda u: [(3, 6), (20, 26)], 0.27,
+                         skipped=skipped) == []
+    short = no_point_reason(skipped)
+    assert short == ("a test point needs 20 s of an ascending plateau after its 5 s run-in, below flutter: 5.00 m/s "
+                     "has 5.0 s; 6.00 m/s has 15.0 s; 7.00 m/s fluttered")
+    assert no_point_reason([]) == "no airspeed plateau above 0 m/s"
     plateau = {"index": 1, "t_start_s": 0.0, "t_end_s": 30.0, "airspeed_mps": 6.0, "rms_tip_w_over_L": 1e-5,
                "peak_tip_w_over_L": 3e-5, "dominant_frequency_hz": 26.0, "growth_rate_per_s": -0.5,
                "status": "decaying"}

@@ -463,24 +463,21 @@ def plateau_windows(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]
             for k, (tc, u) in enumerate(cmds)]
 
 
-def no_point_reason(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]], settle_s: float = 5.0,
-                    dwell_s: float = np.inf, min_dwell_s: float = MIN_DWELL_S) -> str:
-    """Why :func:`replay_points` found no test point in a recording (said by `analyze`, which was silent)."""
-    spans = [end - start for _, u, start, end in plateau_windows(t_last_s, airspeed_cmds, settle_s, dwell_s) if u > 0]
-    if not spans:
+def no_point_reason(skipped: Sequence[str], settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S) -> str:
+    """Why :func:`replay_points` found no test point in a recording (said by `analyze`, which was silent), from the
+    ``skipped`` list it filled."""
+    if not skipped:
         return "no airspeed plateau above 0 m/s"
-    if not kept_minimum(0.0, max(spans), min_dwell_s):
-        return (f"a test point needs {min_dwell_s:g} s of a plateau after its {settle_s:g} s run-in; the longest here "
-                f"has {max(0.0, max(spans)):.1f} s")
-    return (f"no plateau of {min_dwell_s:g} s after its run-in qualified: the tunnel was not at the command, the "
-            "first such plateau fluttered, or a flutter test's dwell was cut short")
+    return (f"a test point needs {min_dwell_s:g} s of an ascending plateau after its {settle_s:g} s run-in, below "
+            f"flutter: {'; '.join(skipped)}")
 
 
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
                   force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S,
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
-                  airspeed_mps: np.ndarray | None = None, complete_only: bool = False) -> list[TestPoint]:
+                  airspeed_mps: np.ndarray | None = None, complete_only: bool = False,
+                  skipped: list[str] | None = None) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
@@ -490,25 +487,36 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
     refused, an aborted rig). ``complete_only`` (a recording of the monitor, whose points each took a whole
     ``dwell_s``): a window shorter than COMPLETE_DWELL_FRACTION x ``dwell_s`` (a test stopped during its dwell) is no
-    test point either, unless it fluttered."""
+    test point either, unless it fluttered. ``skipped``: gets a line for each plateau at U > 0 that gave no point,
+    saying why (:func:`no_point_reason`)."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
     out: list[TestPoint] = []
+    why = skipped if skipped is not None else []
     for tc, u, t_from, t_end in plateau_windows(t[-1], airspeed_cmds, settle_s, dwell_s):
+        if u <= 0:
+            continue
         # (a window of exactly min_dwell_s computes a hair short: the 8.384 m/s point of a --dwell 20 test, commanded
         # at 63.00000000000001 s, was dropped and the prediction changed)
-        if (u <= 0 or not kept_minimum(t_from, t_end, min_dwell_s)
-                or not _tunnel_at(t, airspeed_mps, t_from, t_end, u)):
+        if not kept_minimum(t_from, t_end, min_dwell_s):
+            why.append(f"{u:.2f} m/s has {max(0.0, t_end - t_from):.1f} s")
+            continue
+        if not _tunnel_at(t, airspeed_mps, t_from, t_end, u):
+            why.append(f"{u:.2f} m/s: the tunnel was not at it")
             continue
         if out and u <= out[-1].airspeed_mps:  # the monitor follows the ascent only: a step down is no point (the
-            continue  # replay stopped there, and a live test's later points, the monitor's too, were lost)
+            why.append(f"{u:.2f} m/s: a step down")  # replay stopped there, and a live test's later points, the
+            continue  # monitor's too, were lost)
         if _fluttered(t, y, tc, t_from, t_end, force_npm, panel_length_m):
+            why.append(f"{u:.2f} m/s fluttered")
             break
         if complete_only and t_end - tc - settle_s < COMPLETE_DWELL_FRACTION * dwell_s:
+            why.append(f"{u:.2f} m/s: its dwell was cut short (the test stopped)")
             continue
         yy, dt = resample_window(t, y, t_from, t_end)
         if yy.size < 16:
+            why.append(f"{u:.2f} m/s: too few samples")
             continue
         ff = None
         if force_npm is not None:
