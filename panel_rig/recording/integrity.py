@@ -315,11 +315,12 @@ def _take(scan: McapScan, record: Any, loose: bool = False) -> None:
 
 
 # ------------------------------------------------------------------------------------ the scan
-def scan_mcap(path: Path, on_chunk: Callable[[list[Any]], None] | None = None) -> McapScan:
+def scan_mcap(path: Path, on_chunk: Callable[[list[Any], McapScan], None] | None = None) -> McapScan:
     """Walk the whole file (see the module docstring); never raises on content, only on I/O. The messages of
     the chunks are counted, not held (holding them took 2.4 x the file's size in memory); read them with
-    :func:`messages_in_time_order`, or take each intact chunk's records as the scan parses them: ``on_chunk(records)``
-    (in file order; a reader of a bag found damaged afterwards must drop what it took)."""
+    :func:`messages_in_time_order`, or take each intact chunk's records as the scan parses them: ``on_chunk(records, scan)``
+    (in file order; ``scan`` has the schemas and channels met so far, also those written outside chunks; a reader
+    of a bag found damaged afterwards must drop what it took)."""
     path = Path(path)
     size = path.stat().st_size
     scan = McapScan(path=path, size=size)
@@ -376,7 +377,7 @@ def _frame_ok(f: io.BufferedReader, pos: int, limit: int) -> bool:
 
 
 def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int,
-               on_chunk: Callable[[list[Any]], None] | None = None) -> None:
+               on_chunk: Callable[[list[Any], McapScan], None] | None = None) -> None:
     pos = len(MAGIC)
     last_chunk: ChunkInfo | None = None
     while pos < limit:
@@ -413,7 +414,7 @@ def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int,
                 for r in records:
                     _take(scan, r)
                 if on_chunk is not None:
-                    on_chunk(records)
+                    on_chunk(records, scan)
                 scan.good_end = end
         elif opcode == OP_MESSAGE_INDEX:
             try:

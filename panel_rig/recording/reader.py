@@ -162,7 +162,11 @@ def read_verified(bag_dir: Path, topics: list[str] | None, take: Callable[[RawMe
     path = find_mcap(bag_dir)
     messages = ChunkMessages(path, topics)
 
-    def on_chunk(records: list[Any]) -> None:
+    def on_chunk(records: list[Any], scan: McapScan) -> None:
+        for key, channel in scan.channels.items():  # those written outside chunks too (other writers than ours)
+            messages.channels.setdefault(key, channel)
+        for key, schema in scan.schemas.items():
+            messages.schemas.setdefault(key, schema)
         for message in messages(records):
             take(message)
 
@@ -198,7 +202,7 @@ def _reading(bag_dir: Path, path: Path) -> Iterator[None]:
         ) from None
 
 
-def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any]], None] | None = None) -> McapScan:
+def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any], McapScan], None] | None = None) -> McapScan:
     """Scan the bag's MCAP (every chunk CRC, summary, index); raise CorruptBagError if not intact.
 
     The error is one line: the first problem (chunk index, byte offset, time range), how many more,
