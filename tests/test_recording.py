@@ -805,6 +805,41 @@ def test_a_bag_is_checked_and_read_in_one_pass_and_a_damaged_one_still_refused(t
         load_series(bag_dir)
 
 
+def test_channels_written_outside_chunks_are_read_in_the_one_pass(tmp_path: Path) -> None:
+    """Another writer may put its schema and channel records in the data section outside any chunk, before the
+    chunks of messages (this file is made so with mcap's own writer). The one-pass reader knows them from the scan:
+    without that such an intact bag was refused as corrupt (the chunk's messages named a channel it had not seen)."""
+    import numpy as np
+    from mcap.writer import Writer
+    from rclpy.serialization import serialize_message
+
+    from panel_rig.recording.reader import verify_bag
+    from panel_rig.recording.schemas import schema_text
+    from panel_rig.recording.series import load_series
+
+    bag_dir = tmp_path / "foreign"
+    bag_dir.mkdir()
+    with open(bag_dir / "foreign_0.mcap", "wb") as f:
+        writer = Writer(f, chunk_size=512)
+        writer.start(profile="ros2", library="test")
+        chunks = writer._Writer__chunk_builder  # none while the schema and channel are written: outside chunks
+        writer._Writer__chunk_builder = None
+        schema = writer.register_schema("geometry_msgs/msg/PointStamped", "ros2msg",
+                                        schema_text("geometry_msgs/msg/PointStamped").encode())
+        channel = writer.register_channel("/rig/tip_displacement", "cdr", schema)
+        writer._Writer__chunk_builder = chunks
+        for k in range(1, 41):
+            tip = PointStamped()
+            tip.point.z = k * 1e-3
+            writer.add_message(channel, log_time=k * 2_000_000, data=serialize_message(tip),
+                               publish_time=k * 2_000_000)
+        writer.finish()
+    scan = verify_bag(bag_dir)
+    assert len(scan.chunks) > 2 and scan.channels  # chunked messages, a channel seen outside them
+    rec = load_series(bag_dir)
+    np.testing.assert_allclose(rec.tip_w_over_L * rec.panel_length_m, np.arange(1, 41) * 1e-3)
+
+
 def test_a_bag_that_cannot_be_finished_closes_its_file_and_releases_its_lock(tmp_path: Path) -> None:
     """A full disk fails the summary's write: the file was left open (and its lock taken) when `close` raised."""
     import errno
