@@ -104,6 +104,7 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
     bag has no airspeed commands or the model does not flutter."""
     from panel_rig.analysis.flutter_test import (
+        DEFAULT_SETTLE_S,
         FlutterTestSettings,
         bands_from_model,
         decide,
@@ -145,7 +146,7 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
                            "prediction_method": None, "margin": None, "required_margin": margin}
     if not points:
-        out["no_test_point_reason"] = no_point_reason(skipped, window.get("settle_s", 5.0))
+        out["no_test_point_reason"] = no_point_reason(skipped, window.get("settle_s", DEFAULT_SETTLE_S))
     d = None
     if points:
         d = decide(points, FlutterTestSettings(start_mps=points[0].airspeed_mps, step_mps=0.0, margin=margin))

@@ -49,6 +49,10 @@ FLUTTER_BAND = (0.85, 1.15)
 FIRST_MODE_RATE_FACTOR = 50.0
 
 
+#: a test point's default run-in after its airspeed step (simulated s): the node's flutter_test.settle_s, --settle
+DEFAULT_SETTLE_S = 5.0
+
+
 @dataclass(frozen=True)
 class FlutterTestSettings:
     """The test plan. ``start_mps`` and ``step_mps``: the first airspeed and the largest step; ``dwell_s`` of
@@ -61,7 +65,7 @@ class FlutterTestSettings:
     min_damping: float = 0.002
     min_step_mps: float = 0.05
     dwell_s: float = 200.0
-    settle_s: float = 5.0
+    settle_s: float = DEFAULT_SETTLE_S
     max_points: int = 12
     n_boot: int = 400
     ssi: SSISettings = SSISettings()
@@ -452,7 +456,7 @@ def kept_minimum(window_start_s: float, window_end_s: float, min_dwell_s: float)
     return window_end_s - window_start_s >= min_dwell_s - TIME_TOLERANCE_S
 
 
-def plateau_windows(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]], settle_s: float = 5.0,
+def plateau_windows(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]], settle_s: float = DEFAULT_SETTLE_S,
                     dwell_s: float = np.inf) -> list[tuple[float, float, float, float]]:
     """Each airspeed command's dwell window as the live monitor takes it: (command time s, airspeed m/s, window
     start s, window end s), the window from the command + ``settle_s`` to the next command (or ``t_last_s``, the
@@ -463,7 +467,7 @@ def plateau_windows(t_last_s: float, airspeed_cmds: Sequence[tuple[float, float]
             for k, (tc, u) in enumerate(cmds)]
 
 
-def no_point_reason(skipped: Sequence[str], settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S) -> str:
+def no_point_reason(skipped: Sequence[str], settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S) -> str:
     """Why :func:`replay_points` found no test point in a recording (said by `analyze`, which was silent), from the
     ``skipped`` list it filled."""
     if not skipped:
@@ -474,7 +478,7 @@ def no_point_reason(skipped: Sequence[str], settle_s: float = 5.0, min_dwell_s: 
 
 def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tuple[float, float]],
                   bands: Callable[[float], list[tuple[float, float]]], panel_length_m: float,
-                  force_npm: np.ndarray | None = None, settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S,
+                  force_npm: np.ndarray | None = None, settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S,
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
                   airspeed_mps: np.ndarray | None = None, complete_only: bool = False,
                   skipped: list[str] | None = None) -> list[TestPoint]:

@@ -11,6 +11,7 @@ from typing import Any, Callable, ContextManager, Sequence
 import numpy as np
 
 from panel_rig.analysis.flutter_test import (
+    DEFAULT_SETTLE_S,
     FLUTTER_TIP_FRACTION,
     MIN_DWELL_S,
     Decision,
@@ -228,7 +229,7 @@ class FlutterMonitorSink:
     per point: meant for fast mode, where simulated time waits for it)."""
 
     def __init__(self, cfg: PanelConfig, model, publish: Callable[..., None], margin: float = 0.1,
-                 settle_s: float = 5.0, min_dwell_s: float = MIN_DWELL_S, dwell_s: float = 200.0) -> None:
+                 settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S, dwell_s: float = 200.0) -> None:
         from panel_rig.analysis.vg import model_flutter_speed
 
         found = model_flutter_speed(model)

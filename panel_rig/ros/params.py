@@ -21,7 +21,7 @@ from panel_rig.config import SCHEMA, PanelConfig, float_from_text, interval_rule
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
 from panel_rig.rig.control import ControlSettings
-from panel_rig.rig.flutter_run import MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
+from panel_rig.rig.flutter_run import DEFAULT_SETTLE_S, MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
 from panel_rig.rig.rig import TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 
@@ -134,7 +134,7 @@ NODE_PARAMS: dict[str, NodeParam] = {
     "flutter_monitor": NodeParam(False, False, _bool, "identify each airspeed plateau of the measured tip and "
                                  "publish flutter_monitor (DiagnosticArray: damping, predicted U_f, margin)"),
     # the monitor's test-point window and decision (panel_rig/rig/flutter_run.py FlutterMonitorSink), simulated s
-    "flutter_test.settle_s": _number(5.0, False, "flutter monitor: run-in dropped after each airspeed command, "
+    "flutter_test.settle_s": _number(DEFAULT_SETTLE_S, False, "flutter monitor: run-in dropped after each airspeed command, "
                                      "simulated s", 0.0, MAX_SETTLE_S),
     "flutter_test.dwell_s": _number(200.0, False, "flutter monitor: response identified per test point (published "
                                     "as soon as it is complete), simulated s", MIN_DWELL_S, MAX_DWELL_S),
