@@ -1,8 +1,8 @@
 """Bias and scatter of the flutter test's damping identification at fixed airspeeds (in-process node rig).
 
-``python benchmarks/identification_scatter.py [N_DWELLS] [--set KEY=VALUE ...]`` holds the tunnel at 0.5, 0.6,
-0.7, 0.8 and 0.88 of the model's linear U_f (after the test's 5 s run-in), cuts N consecutive dwells of the test's
-default length (200 s) from one long record, identifies each as a test point is identified (`identify_point`:
+``python benchmarks/identification_scatter.py [N_DWELLS] [--dwell S] [--set KEY=VALUE ...]`` holds the tunnel at 0.5, 0.6,
+0.7, 0.8 and 0.88 of the model's linear U_f (after the test's 5 s run-in), cuts N consecutive dwells of S seconds
+(default: the test's 200 s) from one long record, identifies each as a test point is identified (`identify_point`:
 SSI-cov in the model's bands) and prints one JSON line per airspeed: the model's V-g damping ratio and frequency
 of the flutter mode, the identified ones' mean and standard deviation, and identified / V-g with its standard
 error. Consecutive dwells of one realisation, unlike `flutter_coverage.py`'s seeds, hold the airspeed fixed and
@@ -20,7 +20,7 @@ import numpy as np
 FRACTIONS = (0.5, 0.6, 0.7, 0.8, 0.88)
 
 
-def run(n_dwells: int, sets: list[str]) -> None:
+def run(n_dwells: int, sets: list[str], dwell_s: float | None = None) -> None:
     from panel_rig.analysis.flutter_test import DEFAULT_SETTLE_S, FlutterTestSettings, bands_from_model, identify_point
     from panel_rig.analysis.vg import model_flutter_speed, vg_diagram
     from panel_rig.config import load_config
@@ -31,7 +31,8 @@ def run(n_dwells: int, sets: list[str]) -> None:
     model = Stepper(cfg, variant="full").model
     uf, mode = model_flutter_speed(model)
     bands = bands_from_model(model, mode)
-    dwell_s, steps_per_sample = FlutterTestSettings(start_mps=0.5 * uf, step_mps=0.1 * uf).dwell_s, 4
+    dwell_s = dwell_s or FlutterTestSettings(start_mps=0.5 * uf, step_mps=0.1 * uf).dwell_s
+    steps_per_sample = 4
     for fraction in FRACTIONS:
         t0, u = time.monotonic(), fraction * uf
         rig = node_equivalent_rig(cfg, Stepper(cfg, variant="full"), uf)
@@ -50,7 +51,7 @@ def run(n_dwells: int, sets: list[str]) -> None:
         z = z[np.isfinite(z)]
         ratio = z / vg.damping_ratio[0, m]
         print(json.dumps({
-            "fraction_of_uf": fraction, "airspeed_mps": round(u, 4), "dwells": n_dwells, "identified": int(z.size),
+            "fraction_of_uf": fraction, "airspeed_mps": round(u, 4), "dwells": n_dwells, "dwell_s": dwell_s, "identified": int(z.size),
             "vg_damping_ratio": round(float(vg.damping_ratio[0, m]), 6),
             "vg_frequency_hz": round(float(vg.frequency_hz[0, m]), 4),
             "damping_ratio_mean": round(float(z.mean()), 6), "damping_ratio_sd": round(float(z.std(ddof=1)), 6),
@@ -63,5 +64,6 @@ def run(n_dwells: int, sets: list[str]) -> None:
 if __name__ == "__main__":
     args = sys.argv[1:]
     sets = [args[i + 1] for i, a in enumerate(args) if a == "--set"]
-    plain = [a for i, a in enumerate(args) if a != "--set" and (i == 0 or args[i - 1] != "--set")]
-    run(int(plain[0]) if plain else 20, sets)
+    dwell = [float(args[i + 1]) for i, a in enumerate(args) if a == "--dwell"]
+    plain = [a for i, a in enumerate(args) if not a.startswith("--") and (i == 0 or not args[i - 1].startswith("--"))]
+    run(int(plain[0]) if plain else 20, sets, dwell[-1] if dwell else None)
