@@ -4,9 +4,11 @@
 0.7, 0.8 and 0.88 of the model's linear U_f (after the test's 5 s run-in), cuts N consecutive dwells of S seconds
 (default: the test's 200 s) from one long record, identifies each as a test point is identified (`identify_point`:
 SSI-cov in the model's bands) and prints one JSON line per airspeed: the model's V-g damping ratio and frequency
-of the flutter mode, the identified ones' mean and standard deviation, and identified / V-g with its standard
-error. Consecutive dwells of one realisation, unlike `flutter_coverage.py`'s seeds, hold the airspeed fixed and
-so separate the estimator's scatter from the procedure's.
+of the flutter mode, the identified ones' mean and standard deviation, the median of the standard errors the
+identification reported for itself (SSI-cov's jackknife; compare with the standard deviation: is its interval
+honest?), and identified / V-g with its standard error. Consecutive dwells of one realisation, unlike
+`flutter_coverage.py`'s seeds, hold the airspeed fixed and so separate the estimator's scatter from the
+procedure's.
 """
 
 from __future__ import annotations
@@ -41,12 +43,13 @@ def run(n_dwells: int, sets: list[str], dwell_s: float | None = None) -> None:
         rig.advance_samples([steps_per_sample] * int(round(DEFAULT_SETTLE_S / dt_s)))
         vg = vg_diagram(model, np.array([u]))
         m = int(np.argmin(np.abs(vg.frequency_hz[0] - np.mean(bands(u)[1]))))
-        zeta, freq = [], []
+        zeta, freq, se = [], [], []
         for _ in range(n_dwells):
             blk = rig.advance_samples([steps_per_sample] * int(round(dwell_s / dt_s)))
             p = identify_point(np.asarray(blk.tip_w_m, dtype=float), dt_s, u, bands(u))
             zeta.append(p.flutter.damping_ratio)
             freq.append(p.flutter.frequency_hz)
+            se.append(p.flutter.damping_se)
         z = np.array(zeta, dtype=float)
         z = z[np.isfinite(z)]
         ratio = z / vg.damping_ratio[0, m]
@@ -56,6 +59,7 @@ def run(n_dwells: int, sets: list[str], dwell_s: float | None = None) -> None:
             "vg_frequency_hz": round(float(vg.frequency_hz[0, m]), 4),
             "damping_ratio_mean": round(float(z.mean()), 6), "damping_ratio_sd": round(float(z.std(ddof=1)), 6),
             "frequency_hz_mean": round(float(np.nanmean(freq)), 4),
+            "damping_se_median": round(float(np.nanmedian(se)), 6),
             "over_vg_mean": round(float(ratio.mean()), 4),
             "over_vg_se": round(float(ratio.std(ddof=1) / np.sqrt(ratio.size)), 4),
             "wall_s": round(time.monotonic() - t0, 1)}), flush=True)
