@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: amplitudes (its tip cannot pass its own length, and it does not diverge past ~1.2 U_f as the cubic ones do)
 DEMO_VARIANT = "exact"
 NODE_STOP_TIMEOUT_S = 20.0
+NODE_WATCH_S = 0.5  # wall: how soon the demo notices a node that ended while the operator waits for it
 OPERATOR_TIMEOUT_S = RIG_STARTUP_TIMEOUT_S + 110.0  # wall: the rig's start-up, then the staircase (~10-30 s here)
 
 
@@ -62,11 +63,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo session; 0 on success (an abort of the rig is reported, not a failure), 130 when stopped by
     Ctrl-C (143 by SIGTERM)."""
     ap = OneLineParser(prog="panel-rig demo", description=__doc__.splitlines()[0])
-    ap.add_argument("--profile", default=str(ROOT / "config" / "staircase.yaml"))
+    ap.add_argument("--profile", default=str(ROOT / "config" / "staircase.yaml"),
+                    help="the operator's profile, YAML (default: config/staircase.yaml)")
     ap.add_argument("--out", default="out/demo", help="directory for the .rrd, plots and logs")
-    ap.add_argument("--bag-dir", default="bags")
+    ap.add_argument("--bag-dir", default="bags", help="where the node records its bag (default: bags)")
     ap.add_argument("--max-rtf", type=float, default=20.0, help="fast-mode real-time factor cap (0: none)")
     args = ap.parse_args(argv)
+    problem = _arguments_problem(args)
+    if problem:  # before anything runs: the node and the operator refused them, and the demo waited for neither
+        print(f"panel-rig demo: {problem}", file=sys.stderr)
+        return 2
     try:  # before anything runs (a file or /proc as --out was a traceback; '' wrote into the working directory)
         out = make_output_dir(args.out, "--out")
         bag_dir = make_output_dir(args.bag_dir, "--bag-dir")
@@ -76,6 +82,48 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     with sigterm_exits():
         return _session(args, out, bag_dir)
+
+
+def _arguments_problem(args: argparse.Namespace) -> str | None:
+    """One line for a --max-rtf the node would refuse or a --profile the operator would refuse, else None. (With
+    either the node or the operator exited at once while the demo waited out the rig's start-up, then printed a
+    session summary.)"""
+    from panel_rig.ros.operator import ProfileError, load_profile
+    from panel_rig.ros.params import check_node_params
+
+    problems = check_node_params({"fast_max_realtime_factor": args.max_rtf})
+    if problems:
+        return "--max-rtf: " + problems[0].split(": ", 1)[1]
+    try:
+        load_profile(args.profile)
+    except ProfileError as exc:
+        return f"--profile {args.profile}: {exc}"
+    return None
+
+
+def _wait_for_operator(operator: subprocess.Popen, node: subprocess.Popen, timeout_s: float
+                       ) -> tuple[str, str, bool]:
+    """The operator's (stdout, stderr) once it has played the profile, and False; or, when the node ends first
+    (it refused its parameters, or crashed), at once (within NODE_WATCH_S) what the operator wrote so far and True.
+    An operator that does not finish within ``timeout_s`` (wall) gives a line saying so as its stderr."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            out, err = operator.communicate(timeout=min(NODE_WATCH_S, max(deadline - time.monotonic(), 0.0)))
+            return out, err, False
+        except subprocess.TimeoutExpired:  # retrying communicate() loses no output (subprocess docs)
+            if node.poll() is not None:
+                return "", "", True
+            if time.monotonic() >= deadline:
+                return "", f"the operator did not finish within {timeout_s:g} s (wall)", False
+
+
+def _node_failure(node_code: int | None, node_log: Path) -> str:
+    """Why the session ended early: the node's exit status and the last line of its log that names a problem."""
+    lines = [line.strip() for line in node_log.read_text(errors="replace").splitlines() if line.strip()]
+    said = [line for line in lines if any(w in line.lower() for w in ("error", "invalid", "refused", "failed"))]
+    last = (said or lines or ["(the node log is empty)"])[-1]
+    return f"the rig node exited (status {node_code}) before the operator had played the profile: {last}"
 
 
 def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
@@ -97,6 +145,7 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
               "--timeout", "30", "--startup-timeout", f"{RIG_STARTUP_TIMEOUT_S:g}"]
     node = operator = None
     op_out = op_err = ""
+    node_ended = False
     stopped: BaseException | None = None
     print("panel-rig demo: starting the rig node and the operator (a first run compiles the physics kernels: "
           "about half a minute)", file=sys.stderr, flush=True)
@@ -106,10 +155,7 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
         operator = spawn(op_cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         with open(node_log, "w") as log:
             node = spawn(node_cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
-        try:
-            op_out, op_err = operator.communicate(timeout=OPERATOR_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            op_err = f"the operator did not finish within {OPERATOR_TIMEOUT_S:g} s (wall)"
+        op_out, op_err, node_ended = _wait_for_operator(operator, node, OPERATOR_TIMEOUT_S)
     except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C, SIGTERM: the session's children do not outlive it
         stopped = exc
     finally:
@@ -117,6 +163,9 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
         node_code = stop(node, NODE_STOP_TIMEOUT_S) if node is not None else None
     if stopped is not None:
         return _stopped(stopped, operator, _new_bag(bag_dir, before) or bag_dir, rrd, node_log)
+    if node_ended:
+        print(f"panel-rig demo: {_node_failure(node_code, node_log)} (node log {node_log})", file=sys.stderr)
+        return 1
     wall_s = time.monotonic() - t0
     from panel_rig.ros.operator import NOT_AS_WRITTEN  # (rclpy: loaded only once the session ran)
 

@@ -108,3 +108,59 @@ def test_fast_wait_for_command_starts_the_clock_with_the_first_command(ros_env: 
         watcher.destroy_node()
         rclpy.shutdown(context=ctx)
         stop(node, 30)
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--max-rtf", "-1"], "panel-rig demo: --max-rtf: must lie in [0, 1e+06], got -1.0"),
+    (["--profile", "/nonexistent/profile.yaml"], "panel-rig demo: --profile /nonexistent/profile.yaml: profile not found"),
+    (["--profile", "NEG"], "panel-rig demo: --profile NEG: step 1 (airspeed): expected a number in [0, "),
+])
+def test_arguments_the_node_or_the_operator_would_refuse_are_refused_before_anything_starts(
+        tmp_path: Path, capsys, args: list[str], said: str) -> None:
+    """`demo --max-rtf -1` started a node that refused its parameter and exited, and the demo waited the rig's
+    whole start-up time for it; a missing or bad profile printed a session summary ("Aborts: none (the rig ran the
+    whole procedure)") and exit 1. Both now get one line and exit 2, and nothing is made."""
+    pytest.importorskip("rclpy")
+    from panel_rig.demo import main
+
+    bad = tmp_path / "neg.yaml"
+    bad.write_text("- airspeed: -5\n")
+    args = [str(bad) if a == "NEG" else a for a in args]
+    said = said.replace("NEG", str(bad))
+    assert main([*args, "--out", str(tmp_path / "out"), "--bag-dir", str(tmp_path / "bags")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(said) and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "bags").exists()
+
+
+def test_a_node_that_ends_while_the_operator_waits_for_it_ends_the_wait(tmp_path: Path) -> None:
+    """The demo waited for its operator alone: a node that had exited left it waiting out the operator's start-up
+    timeout (180 s). The wait now ends once the node has, and the node log's problem line says why."""
+    from panel_rig.demo import NODE_WATCH_S, _node_failure, _wait_for_operator
+
+    operator = subprocess.Popen([sys.executable, "-c", "import sys, time; print('waiting'); sys.stdout.flush(); "
+                                 "time.sleep(60)"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    node = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(2)"])
+    try:
+        t0 = time.monotonic()
+        out, err, node_ended = _wait_for_operator(operator, node, timeout_s=60.0)
+        waited = time.monotonic() - t0
+    finally:
+        operator.kill()
+        operator.wait()
+        node.wait()
+    assert node_ended and waited < 10 * NODE_WATCH_S + 5, waited
+    log = tmp_path / "node.log"
+    log.write_text("[INFO] starting\n[ERROR] [rig_node]: invalid parameters: fast_max_realtime_factor: bad\n\n")
+    assert _node_failure(2, log) == ("the rig node exited (status 2) before the operator had played the profile: "
+                                     "[ERROR] [rig_node]: invalid parameters: fast_max_realtime_factor: bad")
+    # an operator that finishes gives its output, and a node still running is no failure
+    operator = subprocess.Popen([sys.executable, "-c", "print('played')"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    node = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        out, err, node_ended = _wait_for_operator(operator, node, timeout_s=60.0)
+    finally:
+        node.kill()
+        node.wait()
+    assert (out.strip(), node_ended) == ("played", False)
