@@ -876,3 +876,26 @@ def test_a_bag_s_mcap_file_given_for_its_directory_names_the_directory(tmp_path:
     out = subprocess.run([sys.executable, "-m", "panel_rig.cli", "analyze", str(bag / "run_0.mcap")],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and f"give the directory that holds it ({bag})" in out.stderr, out.stderr
+
+
+def test_recover_keeps_the_parameters_a_readable_metadata_yaml_holds_and_the_damaged_mcap_lost(tmp_path: Path) -> None:
+    """A closed bag whose MCAP was later damaged before its parameters record (a cut copy, here at that record):
+    recover rebuilt metadata.yaml from the MCAP alone and replaced the good file's parameters with none, keeping
+    no copy. It now keeps the previous metadata.yaml's custom_data entries that the recovered MCAP does not hold,
+    and says so; the parameters record in the MCAP stays the source when it survived."""
+    bag_dir = tmp_path / "cut"
+    with BagWriter(bag_dir) as writer:
+        writer.write_parameters(PARAMS)
+        for topic, msg, ns, qos in _expected_messages():
+            writer.write(topic, msg, ns, qos=qos)
+    before = read_metadata(bag_dir)["custom_data"]
+    assert json.loads(before["panel_rig.parameters"]) == PARAMS
+    mcap = bag_dir / "cut_0.mcap"
+    data = mcap.read_bytes()
+    record = data.index(b"panel_rig/parameters") - 13  # opcode (1), record length (8), name length (4)
+    assert data[record] == 0x0C  # an MCAP Metadata record starts there
+    mcap.write_bytes(data[:record])
+    report = recover_bag(bag_dir)
+    assert read_metadata(bag_dir)["custom_data"] == before
+    assert any("panel_rig.parameters kept from the previous metadata.yaml" in n for n in report.notes), report.notes
+    assert any("kept from the previous" in line for line in report.lines())

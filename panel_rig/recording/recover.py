@@ -34,6 +34,7 @@ from panel_rig.recording.metadata import (
     BagSummary,
     TopicInfo,
     dump_metadata,
+    read_metadata,
     write_metadata,
 )
 from panel_rig.recording.reader import find_mcap, require_bag_dir, single_mcap
@@ -287,6 +288,10 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         if isinstance(exc, OSError):
             raise RecordingError(f"cannot write recovered bag in {bag_dir}: {exc.strerror or exc}") from None
         raise
+    kept = [] if bad_metadata is not None else _keep_custom_data(bag_dir, summary)
+    if kept:
+        notes.append(f"{', '.join(kept)} kept from the previous {METADATA_FILE} (the recovered part of "
+                     f"{mcap_path.name} does not hold {'it' if len(kept) == 1 else 'them'})")
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
     with _sigint_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
         _put_in_place(tmp, mcap_path, broken)
@@ -311,6 +316,24 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         elif p.length:
             report.dropped.append(scan.describe(p))
     return report
+
+
+def _keep_custom_data(bag_dir: Path, summary: BagSummary) -> list[str]:
+    """Copy into ``summary`` the custom_data entries (the run's parameters) of the bag's readable metadata.yaml
+    that the recovered MCAP lost with its damaged part; returns their keys. (A bag cut early lost its parameters
+    record, and the rewrite replaced a good metadata.yaml's parameters with none.)"""
+    if not (bag_dir / METADATA_FILE).is_file():
+        return []
+    try:
+        custom = read_metadata(bag_dir).get("custom_data")
+    except RecordingError:  # MetadataError too: nothing readable to keep
+        return []
+    if not isinstance(custom, dict):
+        return []
+    kept = [k for k, v in custom.items() if isinstance(k, str) and isinstance(v, str) and k not in summary.custom_data]
+    for k in kept:
+        summary.custom_data[k] = custom[k]
+    return kept
 
 
 def _summary_from_scan(scan: McapScan, file_name: str) -> BagSummary:
