@@ -604,7 +604,8 @@ def test_a_long_dwell_after_a_tap_keeps_its_decay() -> None:
     tap = np.where(t >= 2.0, 1e-3 * np.exp(-0.63 * (t - 2.0)) * np.sin(2 * np.pi * 23.0 * t), 0.0)
     w = tap + 3e-5 * np.sin(2 * np.pi * 0.43 * t)
     (p,) = analyze_series(t, w, np.full(t.size, 9.0), {"shaker/amplitude_cmd": [(1.5, 0.3), (2.0, 0.0)]})["plateaus"]
-    assert p["dominant_frequency_hz"] == pytest.approx(0.43, abs=0.1)  # the late window's peak, as in the bag
+    # the late window's peak, 0.43 Hz as in the bag, is 2 periods of that 5 s window: no resolved frequency
+    assert np.isnan(p["dominant_frequency_hz"])
     # the tap's band (15-35 Hz) leaves the 0.43 Hz floor out: the rate is the tap's (a line through the whole
     # log-envelope read -0.18)
     assert p["status"] == "decaying" and p["growth_rate_per_s"] == pytest.approx(-0.63, rel=0.02), p
@@ -988,3 +989,26 @@ def test_a_tap_s_free_response_too_short_to_fit_gives_no_rate_not_an_error(n: in
     assert tap_decay(x, 1 / 500.0, 0.1) is None  # 4 windows of 50 samples needed
     fit = tap_decay(x, 1 / 500.0, 0.002)  # windows of 2 samples: only the filter's padding limits it
     assert (fit is None) == (n <= 27)
+
+
+def test_a_plateau_whose_measuring_window_holds_only_the_sensor_s_noise_has_no_frequency() -> None:
+    """A wind-off plateau after a run: the panel rings down in its first seconds, so its envelope rose above the
+    quiet threshold and it is not "quiet", but its last 5 s (the measuring window) hold only the sensor's 5 um of
+    noise, whose spectral peak was read as the panel's frequency (161 Hz, above every structural mode)."""
+    import dataclasses
+
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series
+    from panel_rig.analyze_cli import quiet_rms_of
+
+    length_m, rng = 0.27, np.random.default_rng(3)
+    crit = dataclasses.replace(Criteria(), quiet_rms=quiet_rms_of({"sensor.tip_noise_m": 5e-6}, length_m, 1e-7))
+    t = np.arange(0.0, 40.0, 1.0 / 500.0)
+    ring = 2e-3 * np.exp(-1.5 * t) * np.sin(2 * np.pi * 23.0 * t)
+    noise = 5e-6 / length_m * rng.standard_normal(t.size)
+    (p,) = analyze_series(t, ring + noise, np.zeros(t.size), {}, crit)["plateaus"]
+    assert p["status"] != "quiet" and p["rms_tip_w_over_L"] == pytest.approx(5e-6 / length_m, rel=0.1), p
+    assert np.isnan(p["dominant_frequency_hz"]), p
+    # a slower ring-down, still moving in the measuring window, has its frequency
+    slow = 2e-3 * np.exp(-0.3 * t) * np.sin(2 * np.pi * 23.0 * t)
+    (p,) = analyze_series(t[t < 8.0], (slow + noise)[t < 8.0], np.zeros(int(np.sum(t < 8.0))), {}, crit)["plateaus"]
+    assert p["dominant_frequency_hz"] == pytest.approx(23.0, abs=0.3), p

@@ -62,7 +62,7 @@ from typing import Any
 import numpy as np
 
 from panel_rig.analysis.decay import tap_decay
-from panel_rig.analysis.signals import dominant_frequency_hz, rms, window_std
+from panel_rig.analysis.signals import dominant_frequency_hz, resolved_frequency_hz, rms, window_std
 
 MIN_ENVELOPE_WINDOWS = 8  # envelope windows a free response is cut into at least (when each is >= envelope_window_s)
 SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
@@ -284,8 +284,10 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     u = airspeed_mps[i0:i1]
     status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
                      tapped=f0 > t0, wind_off=float(np.mean(u)) <= crit.min_extrapolation_airspeed_mps)
-    if status == "quiet":  # the peak of a sensor's noise is no frequency of the panel (it read 100-240 Hz)
-        freq = float("nan")
+    if status == "quiet" or rms_late <= crit.quiet_rms:  # the peak of a sensor's noise is no frequency of the
+        freq = float("nan")  # panel (it read 100-240 Hz; 161 Hz in a wind-off plateau's noise after a decay)
+    else:  # a window shorter than MIN_PERIODS periods has no resolved peak (a 5 s window read 0.24 Hz)
+        freq = resolved_frequency_hz(freq, late.size * mean_dt(t[i1 - late.size : i1]))
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),

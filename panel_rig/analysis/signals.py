@@ -30,6 +30,17 @@ def dominant_frequency_hz(x: np.ndarray, dt_s: float) -> float:
     return float(k / (x.size * dt_s))
 
 
+#: periods a window must span for its spectrum's peak to count as a frequency: the resolution is one period over
+#: the span (an operator's 0.5 s tap step, under 6 periods at 23 Hz, read 13-26 Hz; `analyze`'s 5 s window of a
+#: plateau cut short read 0.24 Hz, its own length)
+MIN_PERIODS = 8
+
+
+def resolved_frequency_hz(freq_hz: float, span_s: float) -> float:
+    """``freq_hz`` when a window of ``span_s`` seconds holds at least MIN_PERIODS of its periods, else NaN."""
+    return float(freq_hz) if freq_hz * span_s >= MIN_PERIODS else float("nan")
+
+
 #: the largest sidelobe of a gapped record's spectral window (the Hann-windowed spectrum of its pattern of kept
 #: readings, against its main lobe) that still leaves the largest peak to the signal: a pattern repeating near a
 #: period of the signal (readings only around every other crossing: 0.96) could pass an alias for it. The fast

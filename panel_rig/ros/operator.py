@@ -33,7 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from panel_rig.analysis.signals import gapped_dominant_frequency_hz
+from panel_rig.analysis.signals import gapped_dominant_frequency_hz, resolved_frequency_hz
 from panel_rig.argparsing import OneLineParser
 from panel_rig.config import MAX_DURATION_S, ConfigError, load_yaml_file, number_if_text
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
@@ -165,10 +165,6 @@ def load_profile(path: str | Path) -> list[Step]:
     return parse_profile(doc)
 
 
-#: periods the second half of a step's readings must span for a frequency: the spectrum's resolution is a period
-#: over the span, and a shaker tap's 0.5 s step (under 6 periods at 23 Hz in its second half, with gaps) read
-#: 13-26 Hz
-MIN_PERIODS = 8
 #: the operator's reading queue per topic (best effort): in fast mode the node publishes readings faster than the
 #: operator takes them, and what it takes at a turn is the newest this many, contiguous (the sensor profile's 5
 #: readings, 10 ms at 500 Hz, spanned a fraction of a 17 Hz period)
@@ -181,8 +177,8 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
     the spectrum's peak of the readings on their own time grid, the missing ones left out
     (:func:`~panel_rig.analysis.signals.gapped_dominant_frequency_hz`), as `panel-rig analyze` takes it from the
     bag's every reading. The mean-crossing count it replaces read the demo's 16.3 Hz LCO as 12.2 Hz when a gap hid
-    a crossing, and gave none for half the LCO's steps. NaN when the readings span fewer than MIN_PERIODS periods
-    or miss them in a pattern that could alias."""
+    a crossing, and gave none for half the LCO's steps. NaN when the readings span fewer than
+    :data:`~panel_rig.analysis.signals.MIN_PERIODS` periods or miss them in a pattern that could alias."""
     if len(samples) < 8:
         return math.nan, math.nan
     arr = np.asarray(samples, dtype=float)
@@ -190,10 +186,7 @@ def tip_metrics(samples: Sequence[tuple[float, float]]) -> tuple[float, float]:
     arr = arr[arr[:, 0] >= arr[0, 0] + 0.5 * (arr[-1, 0] - arr[0, 0])]
     t, w = arr[:, 0], arr[:, 1] - arr[:, 1].mean()
     rms = float(np.sqrt(np.mean(w**2)))
-    freq = gapped_dominant_frequency_hz(t, w)
-    if not freq * (t[-1] - t[0]) >= MIN_PERIODS:
-        return rms, math.nan
-    return rms, float(freq)
+    return rms, resolved_frequency_hz(gapped_dominant_frequency_hz(t, w), t[-1] - t[0])
 
 
 class Operator(Node):
