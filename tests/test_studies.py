@@ -758,6 +758,27 @@ def test_sensitivity_ranks_cases_without_a_flutter_speed_at_their_end(base):
     assert by_key["structure.damping_ratio"]["importance"] > by_key["air.density_kgpm3"]["importance"]
 
 
+def test_sensitivity_of_cases_that_all_rank_alike_is_said_to_be_undefined(base, recwarn):
+    """Every case unstable at the scan's start: spearmanr warned (ConstantInputWarning, on stderr) and the table
+    read `spearman +nan`. Each key now has the measure NO_SPREAD and no value, without a warning."""
+    import xarray as xr
+
+    from panel_rig.studies.cases import UNSTABLE_AT_START
+    from panel_rig.studies.command import print_sensitivity
+    from panel_rig.studies.report import NO_SPREAD, sensitivity_ranking
+
+    study = parse_spec({"kind": "uncertainty", "samples": 4, "seed": 1,
+                        "vary": {"structure.damping_ratio": {"uniform": [0.0, 0.001]}}}, base)
+    zeta = np.array([c["structure.damping_ratio"] for c in study.cases])
+    ds = xr.Dataset({"flutter_speed_mps": ("case", np.full(zeta.size, np.nan)),
+                     "status": ("case", np.full(zeta.size, UNSTABLE_AT_START)),
+                     "structure.damping_ratio": ("case", zeta)})
+    rank = sensitivity_ranking(study, ds)
+    assert rank == [{"key": "structure.damping_ratio", "measure": NO_SPREAD, "value": None, "importance": 0.0}]
+    assert not [w for w in recwarn if "Constant" in type(w.message).__name__]
+    assert print_sensitivity(rank) == [f"  sensitivity  {'structure.damping_ratio':28s} {NO_SPREAD}"]
+
+
 def test_the_table_shows_summary_numbers_rounded_and_percentiles_by_name():
     """The study's table printed `{'5': 8.10090676506601, ...}` (a Python dict of 16-digit floats)."""
     from panel_rig.studies.command import _shown

@@ -84,11 +84,17 @@ def run(args: Any) -> int:
     for k, v in summary.items():
         if k not in ("kind", "branches", "sensitivity"):
             print(f"  {k:24s} {_shown(v)}")
-    for r in summary.get("sensitivity", []):
-        print(f"  sensitivity  {r['key']:28s} {r['measure']} {r['value']:+.3f}")
+    for line in print_sensitivity(summary.get("sensitivity", [])):
+        print(line)
     for r in summary.get("branches", []):
         print(f"  branch  {r}")
     print(f"results: {info['store'].path}  (xarray.open_zarr(PATH, consolidated=False))")
     for f in files:
         print(f"plot:    {f}")
     return 0
+
+
+def print_sensitivity(rank: list[dict[str, Any]]) -> list[str]:
+    """The table's sensitivity lines: key, measure and its value (none when the measure has no value)."""
+    return [f"  sensitivity  {r['key']:28s} {r['measure']}" + ("" if r["value"] is None else f" {r['value']:+.3f}")
+            for r in rank]

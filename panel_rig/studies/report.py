@@ -34,11 +34,18 @@ def ranked_flutter_speeds(ds: Any) -> tuple[np.ndarray, np.ndarray]:
     return ok, rankdata(u[ok])
 
 
+#: the sensitivity measure when the flutter speeds have no spread to rank (spearmanr warned and gave NaN)
+NO_SPREAD = "none (U_f has no spread)"
+
+
 def sensitivity_ranking(study: Study, ds: Any) -> list[dict[str, Any]]:
     """How strongly each uncertain input drives U_f: |Spearman rank correlation| for numbers, the correlation
     ratio (eta) of the ranks for choices of strings; over every case but the failed ones
-    (:func:`ranked_flutter_speeds`); sorted, strongest first."""
+    (:func:`ranked_flutter_speeds`); sorted, strongest first. When every case ranks alike, each key's measure is
+    NO_SPREAD with the value None."""
     ok, r = ranked_flutter_speeds(ds)
+    if np.unique(r).size < 2:  # every case ranks alike (all unstable at the start, say): no correlation is defined
+        return [{"key": key, "measure": NO_SPREAD, "value": None, "importance": 0.0} for key in study.keys]
     out = []
     for key in study.keys:
         x = ds[key].values[ok]
@@ -213,7 +220,8 @@ def plot(study: Study, ds: Any, summary: dict[str, Any], out_dir: Path) -> list[
         rank = summary.get("sensitivity", [])
         a2.barh([r["key"] for r in rank][::-1], [r["importance"] for r in rank][::-1], color="C0")
         for i, r in enumerate(rank[::-1]):
-            a2.text(r["importance"], i, f" {r['measure']} {r['value']:+.2f}", va="center", fontsize=7)
+            a2.text(r["importance"], i, f" {r['measure']}" + ("" if r["value"] is None else f" {r['value']:+.2f}"),
+                    va="center", fontsize=7)
         a2.set_xlim(0, 1.15)
         a2.set_xlabel("|rank correlation| with U_f")
         a2.set_title("sensitivity ranking")
