@@ -379,8 +379,13 @@ def lco_warnings(payload: dict[str, Any]) -> list[str]:
     the airspeed or the duration), and a response that never settled (its RMS and frequency are a transient's; in
     the tunnel below flutter, the turbulence's random response). A panel that stayed at rest (a quiet tunnel below
     flutter) gets none: its RMS 0 says it."""
-    if payload.get("diverged"):
-        return []
+    if payload.get("diverged"):  # no metrics at all: the JSON's null and a table of "-" said nothing of why
+        at = payload.get("diverged_at_s")
+        when = "" if at is None else f" at t = {at:.3f} s"
+        if payload.get("abort_reason"):  # the tunnel's rig stopped the run (its tip limit, the wall): its log said so
+            return []
+        return [f"warning: the run diverged{when} (|w/L| over model.max_tip_w_over_L, or a non-finite state): no "
+                f"LCO metrics; {OUTSIDE_RANGE}"]
     out = []
     peak = payload.get("peak_tip_w_over_L")
     if peak is not None and peak > 1.0:

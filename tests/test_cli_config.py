@@ -458,7 +458,24 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
                          "diverged": False})
     assert len(wild) == 2 and "|w/L| = 1.28, past the panel's own length" in wild[0]
     assert "no steady state" in wild[1] and "of a transient or an irregular response" in wild[1]
-    assert lco_warnings({"peak_tip_w_over_L": 2.1, "steady_after_s": None, "diverged": True}) == []
+    # a diverged run has no metrics (null, "-"): it said nothing on stderr and exited 0 as a clean run did
+    (gone,) = lco_warnings({"peak_tip_w_over_L": None, "steady_after_s": None, "diverged": True,
+                            "diverged_at_s": 5.3662109375})
+    assert gone.startswith("warning: the run diverged at t = 5.366 s") and "no LCO metrics" in gone, gone
+    # the tunnel's rig stopped it: the rig's own log line says when and why
+    assert lco_warnings({"diverged": True, "diverged_at_s": 9.78, "abort_reason": "tip |w/L| = 1.0024 exceeds"}) == []
+
+
+def test_a_diverged_lco_run_s_plot_holds_its_history_up_to_the_divergence(tmp_path):
+    """The history of a diverged run ended at the last whole 1 s chunk (5.0 s), its "diverged" mark at 5.37 s: the
+    steps of the chunk it diverged in were lost with the error. They are kept now."""
+    from panel_rig.analysis.lco import run_lco
+    from panel_rig.config import load_config
+
+    cfg = load_config()
+    res, tip, st = run_lco(cfg, 13.0, 10.0, keep=True)
+    assert res.diverged and tip.size == st.steps == round(res.diverged_at_s / cfg.dt_s), (tip.size, st.steps)
+    assert abs(tip[-1]) <= cfg.max_tip_w_over_L and abs(tip[-1]) > 0.9 * cfg.max_tip_w_over_L
 
 
 def test_lco_in_the_tunnel_below_flutter_is_called_a_random_response_and_a_panel_at_rest_gets_no_warning():

@@ -51,8 +51,9 @@ def run_lco(cfg: PanelConfig, airspeed_mps: float, duration_s: float, variant: s
             done += k
             if progress:
                 progress(done / n_total)
-    except DivergenceError as exc:
-        return diverged_result(airspeed_mps, exc.time_s), (tip[:done] if keep else None), st
+    except DivergenceError as exc:  # the history up to the last good step
+        kept = np.concatenate([tip[:done], exc.tip_w_over_L])
+        return diverged_result(airspeed_mps, exc.time_s), (kept if keep else None), st
     return lco_metrics(tip, st.dt_s, airspeed_mps), (tip if keep else None), st
 
 

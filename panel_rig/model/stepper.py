@@ -32,6 +32,7 @@ class DivergenceError(RuntimeError):
         super().__init__(f"model diverged at t = {time_s:.4f} s: {reason}")
         self.reason = reason
         self.time_s = time_s
+        self.tip_w_over_L = np.zeros(0)  # :meth:`Stepper.advance`: the tip after each step it did before this
 
 
 @dataclass(frozen=True)
@@ -252,7 +253,8 @@ class Stepper:
 
         ``gust_upwash_mps`` (n_steps, km): the vertical gust (m/s, positive up) at each collocation point at the
         end of each step (the field is the caller's: e.g. a convected turbulence field); None: no gust.
-        Raises DivergenceError (state kept at the last finite step) if the march leaves the physical range.
+        Raises DivergenceError (state kept at the last finite step, the tip after each step done before it in the
+        error's ``tip_w_over_L``) if the march leaves the physical range.
         """
         U = np.broadcast_to(np.asarray(airspeed_mps, dtype=float), (n_steps,)).copy()
         F = np.broadcast_to(np.asarray(tip_force_npm, dtype=float), (n_steps,)).copy()
@@ -261,14 +263,18 @@ class Stepper:
         G = self._gust(gust_upwash_mps, n_steps)
         if not np.all(np.isfinite(G)):
             raise ValueError("gust upwash must be finite")
-        tip = np.empty(n_steps)
-        if n_steps > 1:
-            self._march(U[:-1], F[:-1], tip[:-1], G[:-1])
-        if n_steps > 0:
-            wg0 = self.wg.copy()
-            self._last = (float(U[-1]), self.q.copy(), self.qdot.copy(), self.xi.copy(), wg0,
-                          G[-1].copy() if G.shape[1] else wg0)
-            self._march(U[-1:], F[-1:], tip[-1:], G[-1:])
+        tip, start = np.empty(n_steps), self.steps
+        try:
+            if n_steps > 1:
+                self._march(U[:-1], F[:-1], tip[:-1], G[:-1])
+            if n_steps > 0:
+                wg0 = self.wg.copy()
+                self._last = (float(U[-1]), self.q.copy(), self.qdot.copy(), self.xi.copy(), wg0,
+                              G[-1].copy() if G.shape[1] else wg0)
+                self._march(U[-1:], F[-1:], tip[-1:], G[-1:])
+        except DivergenceError as exc:  # the steps done before it (a plot of a diverged run ended a chunk early)
+            exc.tip_w_over_L = tip[: self.steps - start].copy()
+            raise
         return tip
 
     def _march(self, U: np.ndarray, F: np.ndarray, tip: np.ndarray, G: np.ndarray) -> None:
