@@ -282,7 +282,13 @@ def format_table(result: dict[str, Any]) -> str:
         more = f" and {len(gaps) - MAX_GAPS_SHOWN} more (JSON: gaps)" if len(gaps) > MAX_GAPS_SHOWN else ""
         lines.append("gaps in the time stamps (a chunk a recovery dropped, or a real-time node's overrun that shifted "
                      f"its clock; no plateau spans one): {shown}{more}")
-    lines.append(head)
+    crit = result.get("criteria") or {}
+    if result["plateaus"]:
+        lines.append(head)
+    else:  # an empty table and "flutter onset: no plateau was unstable" read as a run that stayed stable
+        lines.append(f"no plateau: the airspeed stays within {crit.get('tol_mps', 0.05):g} m/s for "
+                     f"{crit.get('min_duration_s', 3.0):g} s nowhere in this {result['duration_s']:.1f} s; no flutter "
+                     "onset to bracket")
     for p in result["plateaus"]:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
@@ -305,9 +311,11 @@ def format_table(result: dict[str, Any]) -> str:
                     else "none (needs two plateaus with a measured decay)")
     interpolated = (f"{num(o['interpolated_mps'])} m/s" if o["interpolated_mps"] is not None
                     else "none (needs a measured growth at the bracket's top and a decay at its bottom)")
-    if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
+    if not result["plateaus"]:
+        pass
+    elif o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
         # (a wind-off plateau is no evidence: "stable up to 0.00 m/s" after a first point that fluttered)
-        low, wind_on_mps = o["bracket_low_mps"], (result.get("criteria") or {}).get("min_extrapolation_airspeed_mps", 0.5)
+        low, wind_on_mps = o["bracket_low_mps"], crit.get("min_extrapolation_airspeed_mps", 0.5)
         lines.append("flutter onset: no plateau was unstable"
                      + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
                      + f"; extrapolated from decay rates: {extrapolated}")

@@ -841,7 +841,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_parser(name, help=text, add_help=False)
 
     p = sub.add_parser("bag", help="recording utilities")
-    bag = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
+    bag = p.add_subparsers(dest="bag_command", metavar="command", required=True, parser_class=_Parser)
     r = bag.add_parser("recover", help="rebuild a readable bag from a killed or corrupt recording")
     r.add_argument("bag", metavar="BAG")
     r.set_defaults(func=cmd_bag_recover)

@@ -286,6 +286,8 @@ def parse_override(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise ConfigError(f"--set expects KEY=VALUE, got {text!r}")
+    if not raw.strip():  # YAML reads nothing as null: "expected a number, got None" named no mistake of the user's
+        raise ConfigError(f"--set {key.strip()}= has no value (KEY=VALUE)")
     try:
         value = yaml.safe_load(raw)
     except yaml.YAMLError:

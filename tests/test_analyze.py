@@ -1012,3 +1012,26 @@ def test_a_plateau_whose_measuring_window_holds_only_the_sensor_s_noise_has_no_f
     slow = 2e-3 * np.exp(-0.3 * t) * np.sin(2 * np.pi * 23.0 * t)
     (p,) = analyze_series(t[t < 8.0], (slow + noise)[t < 8.0], np.zeros(int(np.sum(t < 8.0))), {}, crit)["plateaus"]
     assert p["dominant_frequency_hz"] == pytest.approx(23.0, abs=0.3), p
+
+
+def test_a_bag_without_a_plateau_says_so_instead_of_an_empty_table(tmp_path: Path) -> None:
+    """A 1.7 s bag (the first chunk of a recording, rebuilt) printed the table's head alone and "flutter onset: no
+    plateau was unstable", as if the panel had been stable somewhere. It now says there is no plateau, and why."""
+    from panel_rig.analyze_cli import format_table
+
+    bag = tmp_path / "short"
+    with BagWriter(bag) as writer:
+        writer.write_parameters({"panel.length_m": LENGTH_M})
+        for k in range(int(1.7 * FS_HZ)):
+            ns = int(round(k / FS_HZ * 1e9)) + 1
+            tip, air = PointStamped(), Vector3Stamped()
+            _stamp(tip, ns)
+            _stamp(air, ns)
+            air.vector.x = 8.0
+            writer.write("/rig/tip_displacement", tip, ns)
+            writer.write("/rig/airspeed", air, ns)
+    res = analyze_bag(bag)
+    assert res["plateaus"] == []
+    text = format_table(res)
+    assert "no plateau: the airspeed stays within 0.05 m/s for 3 s nowhere in this 1.7 s" in text, text
+    assert "flutter onset" not in text and " t_s " not in text, text

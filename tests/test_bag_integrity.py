@@ -441,9 +441,11 @@ def test_analyze_does_not_send_a_file_recover_cannot_use_to_recover(tmp_path: Pa
     path.write_bytes(content)
     assert analyze_main([str(bag)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "not an MCAP file" in lines[0] and "bag recover" not in lines[0], lines
+    what = "is empty (0 bytes)" if not content else "not an MCAP file"  # an empty file ended "nothing to recover"
+    assert len(lines) == 1 and what in lines[0] and "bag recover" not in lines[0], lines
+    assert lines[0].endswith("no recording in it to read or to rebuild"), lines
     assert main_bag_recover(str(bag)) == 2  # and recover agrees
-    assert "not an MCAP file" in capsys.readouterr().err
+    assert ("is empty (0 bytes): nothing to rebuild" if not content else "not an MCAP file") in capsys.readouterr().err
 
 
 def test_recover_says_it_wrote_a_missing_metadata_yaml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -387,6 +387,14 @@ def test_set_takes_numbers_yaml_1_1_leaves_as_text():
         config_from_flat({"air.density_kgpm3": "nan"})
 
 
+def test_set_with_an_empty_value_says_so():
+    """`--set panel.length_m=` said "expected a number, got None" (YAML reads nothing as null)."""
+    out = run("modes", "--set", "panel.length_m=")
+    assert out.returncode == 2 and out.stderr.strip() == "panel-rig: error: --set panel.length_m= has no value (KEY=VALUE)"
+    with pytest.raises(ConfigError, match="has no value"):
+        load_config(None, ["panel.length_m=  "])
+
+
 def test_a_tunnel_lco_reports_the_abort_time_not_the_chunk_end():
     out = run("lco", "--airspeed", "20", "--duration", "3", "--seed", "2", "--json")
     assert out.returncode == 0, out.stderr

@@ -214,7 +214,8 @@ def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any], McapScan], None] | 
     if not scan.ok:
         _refuse_live(bag_dir)
         if not scan.recoverable:  # `bag recover` would refuse it too: no header and no chunk to rebuild from
-            raise RecordingError(f"{path} is not an MCAP file (no valid header, no chunk): nothing to recover")
+            what = "is empty (0 bytes)" if scan.size == 0 else "is not an MCAP file (no valid header, no chunk)"
+            raise RecordingError(f"{path} {what}: no recording in it to read or to rebuild")
         if scan.truncated and not scan.bad_chunks:
             what = f"{path} has no summary (recorder killed?)"
         else:

@@ -265,7 +265,8 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         mcap_path, bad_metadata = single_mcap(bag_dir), exc
     scan = scan_mcap(mcap_path)
     if not scan.recoverable:
-        raise RecordingError(f"{mcap_path} is not an MCAP file (no valid header)")
+        raise RecordingError(f"{mcap_path} is empty (0 bytes): nothing to rebuild" if scan.size == 0
+                             else f"{mcap_path} is not an MCAP file (no valid header)")
     if bad_metadata is not None:
         damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
         os.replace(bag_dir / METADATA_FILE, damaged)
