@@ -235,9 +235,7 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
                         f"{p['dominant_frequency_hz']:.2f} Hz, rate {p['growth_rate_per_s']:.3f} 1/s)",
                         warn=p["status"] in ("lco", "growing"))
     if plateaus and result.get("onset"):
-        lines = format_table({**result, "plateaus": [], "flutter_test": None, "plots": [], "rerun": None,
-                              "refused_commands": {}, "gaps": []}).splitlines()
-        onset = next(line for line in lines if line.startswith("flutter onset"))
+        onset = onset_line(result["onset"], result.get("criteria") or {})
         logger.log_text(plateaus[-1]["t_end_s"], "analysis/onset", onset,
                         warn=result["onset"]["bracket_high_mps"] is not None)
 
@@ -257,6 +255,35 @@ def _rate(plateau: dict[str, Any]) -> str:
     if plateau["status"] in ("stationary", "quiet") or plateau.get("growth_rate_per_s") is None:
         return "-"
     return f"{round(plateau['growth_rate_per_s'], 3) + 0.0:.3f}"  # + 0.0: no '-0.000'
+
+
+def num(x: float | None) -> str:
+    """A number for the table, two decimals; "-" for none."""
+    return "-" if x is None else f"{x:.2f}"
+
+
+def onset_line(o: dict[str, Any], crit: dict[str, Any]) -> str:
+    """The table's flutter-onset line of an `analyze_bag` result's ``onset`` (``crit``: its ``criteria``)."""
+    # an estimate that could not be made says why ("- m/s" read as a figure lost)
+    extrapolated = (f"{num(o['extrapolated_mps'])} m/s" if o["extrapolated_mps"] is not None
+                    else "none (the rates do not rise towards 0)" if len(o["extrapolation_points"]) >= 2
+                    else "none (needs two plateaus with a measured decay)")
+    interpolated = (f"{num(o['interpolated_mps'])} m/s" if o["interpolated_mps"] is not None
+                    else "none (needs a measured growth at the bracket's top and a decay at its bottom)")
+    if o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
+        # (a wind-off plateau is no evidence: "stable up to 0.00 m/s" after a first point that fluttered)
+        low, wind_on_mps = o["bracket_low_mps"], crit.get("min_extrapolation_airspeed_mps", 0.5)
+        return ("flutter onset: no plateau was unstable"
+                + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
+                + f"; extrapolated from decay rates: {extrapolated}")
+    if o["bracket_low_mps"] is None:  # "bracket 0.00 .. 12.00" (the tunnel at rest) read as a lower bound
+        return (f"flutter onset: at or below {num(o['bracket_high_mps'])} m/s (no stable plateau with the wind "
+                f"on before it); extrapolated from decay rates: {extrapolated}")
+    low, high = num(o["bracket_low_mps"]), num(o["bracket_high_mps"])
+    if low == high:  # two plateaus at one nominal airspeed ("9.00 .. 9.00"): the digits that tell them apart
+        low, high = f"{o['bracket_low_mps']:.3f}", f"{o['bracket_high_mps']:.3f}"
+    return (f"flutter onset bracket: {low} .. {high} m/s; "
+            f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -300,34 +327,8 @@ def format_table(result: dict[str, Any]) -> str:
         if abs(mean) > max(p["rms_tip_w_over_L"], HELD_DEFLECTION_W_OVER_L):
             lines.append(f"plateau {p['index']}: the tip is held at w/L = {mean:.4g} on average (a static deflection, "
                          "a force held on the shaker); rms_w/L is the motion about it")
-    o = result["onset"]
-
-    def num(x: float | None) -> str:
-        return "-" if x is None else f"{x:.2f}"
-
-    # an estimate that could not be made says why ("- m/s" read as a figure lost)
-    extrapolated = (f"{num(o['extrapolated_mps'])} m/s" if o["extrapolated_mps"] is not None
-                    else "none (the rates do not rise towards 0)" if len(o["extrapolation_points"]) >= 2
-                    else "none (needs two plateaus with a measured decay)")
-    interpolated = (f"{num(o['interpolated_mps'])} m/s" if o["interpolated_mps"] is not None
-                    else "none (needs a measured growth at the bracket's top and a decay at its bottom)")
-    if not result["plateaus"]:
-        pass
-    elif o["bracket_high_mps"] is None:  # "bracket 0.00 .. -" read as an onset found
-        # (a wind-off plateau is no evidence: "stable up to 0.00 m/s" after a first point that fluttered)
-        low, wind_on_mps = o["bracket_low_mps"], crit.get("min_extrapolation_airspeed_mps", 0.5)
-        lines.append("flutter onset: no plateau was unstable"
-                     + (f" (stable up to {num(low)} m/s)" if low is not None and low > wind_on_mps else "")
-                     + f"; extrapolated from decay rates: {extrapolated}")
-    elif o["bracket_low_mps"] is None:  # "bracket 0.00 .. 12.00" (the tunnel at rest) read as a lower bound
-        lines.append(f"flutter onset: at or below {num(o['bracket_high_mps'])} m/s (no stable plateau with the wind "
-                     f"on before it); extrapolated from decay rates: {extrapolated}")
-    else:
-        low, high = num(o["bracket_low_mps"]), num(o["bracket_high_mps"])
-        if low == high:  # two plateaus at one nominal airspeed ("9.00 .. 9.00"): the digits that tell them apart
-            low, high = f"{o['bracket_low_mps']:.3f}", f"{o['bracket_high_mps']:.3f}"
-        lines.append(f"flutter onset bracket: {low} .. {high} m/s; "
-                     f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
+    if result["plateaus"]:
+        lines.append(onset_line(result["onset"], crit))
     ft = result.get("flutter_test")
     if ft and not ft["test_points"] and ft.get("no_test_point_reason"):
         lines.append(f"flutter-test replay: no test point ({ft['no_test_point_reason']})")
