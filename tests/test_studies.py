@@ -568,10 +568,36 @@ def test_bifurcation_summary_says_where_a_branch_diverged(base):
     down = np.array([c["direction"] == "down" for c in study.cases])
     diverged = (u >= 12.0) | down  # up: from 12 m/s; down: from its first step, 14 m/s, on
     ds = xr.Dataset({"airspeed_mps": ("case", u), "diverged": ("case", diverged),
-                     "rms_tip_w_over_L": ("case", np.where(diverged, np.nan, 0.0))})
+                     "rms_tip_w_over_L": ("case", np.where(diverged, np.nan, 0.0)),
+                     "steady_after_s": ("case", np.where(diverged, np.nan, 0.5))})
     row = summarize(study, ds)["branches"][0]
     assert row["lco_onset_up_mps"] is None and row["lco_lowest_down_mps"] is None
     assert row["diverged_up_from_mps"] == 12.0 and row["diverged_down_from_mps"] == 14.0
+    assert row["unsettled_cases"] == 0  # a diverged case is no unsettled one
+
+
+def test_bifurcation_summary_warns_of_cases_that_never_settled(base):
+    """A 5 s bifurcation spec in which no case settled reported `hysteresis: True` with no word, and its table
+    printed Python dicts (`branch {'variant': 'exact', ...}`). The row counts the unsettled cases and the table
+    warns under it, in `key value` pairs."""
+    import xarray as xr
+
+    from panel_rig.studies.command import print_branches
+    from panel_rig.studies.report import summarize
+
+    study = parse_spec({"kind": "bifurcation", "airspeeds": [10.0, 12.0], "variants": ["exact"],
+                        "direction": "both", "duration_s": 5.0}, base)
+    u = np.array([c["airspeed_mps"] for c in study.cases])
+    down = np.array([c["direction"] == "down" for c in study.cases])
+    ds = xr.Dataset({"airspeed_mps": ("case", u), "diverged": ("case", np.zeros(u.size, bool)),
+                     "rms_tip_w_over_L": ("case", np.where(down | (u == 12.0), 0.3, 0.0)),
+                     "steady_after_s": ("case", np.full(u.size, np.nan))})
+    (row,) = summarize(study, ds)["branches"]
+    assert row["hysteresis"] and row["unsettled_cases"] == u.size
+    lines = print_branches([row])
+    assert lines[0].startswith("  branch  variant exact, ") and "{" not in lines[0] and "None" not in lines[0], lines
+    assert lines[1].startswith(f"  warning: {u.size} case(s) of this chain never settled"), lines
+    assert print_branches([{**row, "unsettled_cases": 0}])[1:] == []
 
 
 def test_bifurcation_diverged_marks_sit_above_every_lco_point(base, tmp_path, monkeypatch):

@@ -28,6 +28,8 @@ def _stored(out: Path) -> int:
 def _shown(value: Any) -> str:
     """A summary value for the table: numbers to 3 decimals (4 significant digits below 1), a mapping as "key: value" pairs (the
     percentiles printed as a Python dict of 16-digit floats); the JSON keeps every digit."""
+    if value is None:  # a figure that does not exist (null in the JSON)
+        return "-"
     if isinstance(value, dict):
         return ", ".join(f"P{k} {_shown(v)}" if str(k).isdigit() else f"{k}: {_shown(v)}" for k, v in value.items())
     if isinstance(value, float):
@@ -86,8 +88,8 @@ def run(args: Any) -> int:
             print(f"  {k:24s} {_shown(v)}")
     for line in print_sensitivity(summary.get("sensitivity", [])):
         print(line)
-    for r in summary.get("branches", []):
-        print(f"  branch  {r}")
+    for line in print_branches(summary.get("branches", [])):
+        print(line)
     print(f"results: {info['store'].path}  (xarray.open_zarr(PATH, consolidated=False))")
     for f in files:
         print(f"plot:    {f}")
@@ -98,3 +100,15 @@ def print_sensitivity(rank: list[dict[str, Any]]) -> list[str]:
     """The table's sensitivity lines: key, measure and its value (none when the measure has no value)."""
     return [f"  sensitivity  {r['key']:28s} {r['measure']}" + ("" if r["value"] is None else f" {r['value']:+.3f}")
             for r in rank]
+
+
+def print_branches(rows: list[dict[str, Any]]) -> list[str]:
+    """The table's bifurcation lines, one per variant and grid point: ``key value`` pairs (it printed Python dicts),
+    and a warning line under a chain with cases that never settled."""
+    out = []
+    for r in rows:
+        out.append("  branch  " + ", ".join(f"{k} {_shown(v)}" for k, v in r.items()))
+        if r.get("unsettled_cases"):
+            out.append(f"  warning: {r['unsettled_cases']} case(s) of this chain never settled (steady_after_s null: "
+                       "raise duration_s); its LCO onset, lowest LCO and hysteresis are read from transients")
+    return out

@@ -85,6 +85,11 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
                 row[f"diverged_{d}_from_mps"] = None if first is None else float(first)
             up, down = row.get("lco_onset_up_mps"), row.get("lco_lowest_down_mps")
             row["hysteresis"] = bool(up is not None and down is not None and down < up)
+            # cases whose response never settled: their RMS is a transient's, and so is a hysteresis read from it
+            # (a 5 s spec reported hysteresis with no case settled, and said nothing)
+            cases = [i for branch in ch.cases for i in branch]
+            steady = np.asarray(ds["steady_after_s"].values[cases], float)
+            row["unsettled_cases"] = int(np.sum(np.isnan(steady) & ~ds["diverged"].values[cases].astype(bool)))
             rows.append(row)
         return {"kind": study.kind, "branches": rows, "lco_rms_threshold": LCO_RMS}
     u = ds["flutter_speed_mps"].values
