@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import tempfile
 from pathlib import Path
 
@@ -22,8 +23,9 @@ def make_output_dir(path: str | Path, option: str) -> Path:
     try:
         with tempfile.TemporaryFile(dir=path):
             pass
-    except OSError as exc:
-        raise ValueError(f"{option}: cannot write in the directory {path}: {exc.strerror or exc}") from None
+    except OSError as exc:  # /proc refuses a file with ENOENT: "No such file or directory" named the directory
+        reason = "it takes no files" if exc.errno == errno.ENOENT and path.is_dir() else (exc.strerror or exc)
+        raise ValueError(f"{option}: cannot write in the directory {path}: {reason}") from None
     return path
 
 

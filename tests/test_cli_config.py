@@ -75,6 +75,8 @@ def test_flutter_plot(tmp_path):
     (["flutter", "--vg", "5:150:1"], "got 150"),
     (["flutter", "--control", "--rate-hz", "0"], "--rate-hz"),  # was a ZeroDivisionError traceback
     (["flutter", "--control", "--plot", "/proc/no_such_dir/x.png"], "/proc/no_such_dir"),  # any OSError: one line
+    # /proc itself is a directory that takes no file: its ENOENT read "No such file or directory"
+    (["flutter", "--plot", "/proc/x.png"], "--plot: cannot write in the directory /proc: it takes no files"),
     (["flutter-test", "--domain-id", "300"], "--domain-id"),  # was an RTPS error on stdout
     (["flutter-test", "--in-process", "--domain-id", "5"], "not with --in-process"),  # was silently ignored
     # rcl's argument errors were tracebacks (from remove_ros_args or the node's creation)
