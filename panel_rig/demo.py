@@ -164,10 +164,13 @@ def _session(args: argparse.Namespace, out: Path, bag_dir: Path) -> int:
     if stopped is not None:
         return _stopped(stopped, operator, _new_bag(bag_dir, before) or bag_dir, rrd, node_log)
     if node_ended:
-        print(f"panel-rig demo: {_node_failure(node_code, node_log)} (node log {node_log})", file=sys.stderr)
+        bag = _new_bag(bag_dir, before)
+        print(f"panel-rig demo: {_node_failure(node_code, node_log)} (node log {node_log}"
+              + (f"; its recording: {bag}, `panel-rig bag recover` rebuilds it if it was not closed)" if bag else ")"),
+              file=sys.stderr)
         return 1
     wall_s = time.monotonic() - t0
-    from panel_rig.ros.operator import NOT_AS_WRITTEN  # (rclpy: loaded only once the session ran)
+    from panel_rig.ros.operator import NOT_AS_WRITTEN
 
     log_text = node_log.read_text(errors="replace")
     aborts = [line.split("]: ", 1)[-1] for line in log_text.splitlines() if "rig aborted" in line]
