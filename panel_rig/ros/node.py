@@ -51,10 +51,10 @@ from panel_rig.ros.params import (
     publish_rate_problem,
 )
 from panel_rig.ros.publishing import SHAPE_POINTS, ReadingPublisher, ReadingTopics, Recording
+from panel_rig.ros.rejections import RejectionLog
 from panel_rig.topics import REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
-REJECTION_LOG_S = 0.2  # wall seconds between two warnings of rejected commands on one topic
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 #: the tunnel commands in: a depth-10 queue lost part of a burst sent back to back (each command counts)
 COMMAND_IN_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -164,9 +164,8 @@ class RigNode(Node):
         self._diag_record_errors = 0
         self._diag_viewer_dropped = 0
         self._viewer_warned_wall = -math.inf
-        self._rejection_logged: dict[str, float] = {}  # topic -> wall time of its last rejection warning
         self._diag_aborts = 0  # the rig's abort count at the last /diagnostics
-        self._rejection_held: dict[str, tuple[int, str]] = {}  # topic -> (warnings held back, the last one)
+        self._rejections = RejectionLog()  # the warnings of rejected commands, throttled per topic
         # real time: readings carry the ROS clock (sim time + offset, shifted by every overrun); fast: sim time
         if not self.fast:
             self.publication.stamp_offset_ns = self.get_clock().now().nanoseconds - messages.stamp_ns(self.rig.time_s)
@@ -438,27 +437,16 @@ class RigNode(Node):
         return callback
 
     def _warn_rejected(self, topic: str, text: str) -> None:
-        """One warning per rejected command, at most one per topic every REJECTION_LOG_S (wall): rclpy's own
-        throttle is per call site, so a rejected airspeed hid a rejected force sent just after it. The warnings
-        held back are summed up by :meth:`_log_held_rejections` (a burst's later reasons were never logged)."""
-        now = time.monotonic()
-        if now - self._rejection_logged.get(topic, -math.inf) >= REJECTION_LOG_S:
-            self._log_held_rejections(topic)
-            self._rejection_logged[topic] = now
-            self.get_logger().warning(text)
-        else:
-            held, _ = self._rejection_held.get(topic, (0, ""))
-            self._rejection_held[topic] = (held + 1, text)
+        """A warning per rejected command, throttled per topic (:class:`~panel_rig.ros.rejections.RejectionLog`)."""
+        line = self._rejections.rejected(topic, text, time.monotonic())
+        if line is not None:
+            self.get_logger().warning(line)
 
-    def _log_held_rejections(self, topic: str | None = None) -> None:
-        """One warning per topic (all topics: None) for the rejections its throttle held back, with the last one's
-        reason; called before the topic's next warning and at each diagnostics period."""
-        for name in [topic] if topic is not None else list(self._rejection_held):
-            held = self._rejection_held.pop(name, None)
-            if held is not None:
-                n, last = held
-                self.get_logger().warning(f"{n} more command(s) on {name} rejected (warnings at most every "
-                                          f"{REJECTION_LOG_S:g} s per topic); the last: {last}")
+    def _log_held_rejections(self) -> None:
+        """At each diagnostics period: the warnings the throttle held back, one line per topic, once its period
+        has passed."""
+        for line in self._rejections.due(time.monotonic()):
+            self.get_logger().warning(line)
 
     def _record_command(self, topic: str, msg: Any, accepted: bool) -> None:
         """Every command received goes into the recording: on its own topic if the rig took it, else on
