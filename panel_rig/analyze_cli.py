@@ -48,7 +48,8 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "flutter-test points")
     if criteria is None:  # "quiet" above the run's sensor noise: a panel at rest read 5 um of noise, "stationary"
         crit = dataclasses.replace(crit, quiet_rms=quiet_rms_of(rec.parameters, rec.panel_length_m, crit.quiet_rms))
-    core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit)
+    core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit,
+                          abort_times_s=[t for t, _ in rec.aborts])
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),

@@ -1033,3 +1033,23 @@ def test_a_bag_without_a_plateau_says_so_instead_of_an_empty_table(tmp_path: Pat
     text = format_table(res)
     assert "no plateau: the airspeed stays within 0.05 m/s for 3 s nowhere in this 1.7 s" in text, text
     assert "flutter onset:" not in text and "flutter onset bracket" not in text and " t_s " not in text, text
+
+
+def test_a_plateau_still_growing_when_the_rig_aborted_is_growing_not_lco() -> None:
+    """A closed loop held the panel quiet at 1.2 U_f, then was switched off: the panel grew (+1.8 1/s over its last
+    5 s) until the rig aborted at its tip limit, and the irregular-LCO rule (RMS >= 0.05, an envelope that is not
+    one exponential) called the plateau "lco". A plateau the rig's abort ended while it still grew is "growing";
+    without the abort the same record stays as it was."""
+    from panel_rig.analysis.bag_analysis import analyze_series
+
+    t = np.arange(0.0, 18.1, 1.0 / 500.0)
+    u = np.where(t < 2.0, 12.58 * (1 - np.exp(-t / 0.2)), 12.58)
+    rng = np.random.default_rng(0)
+    quiet = 5e-4 * np.sin(2 * np.pi * 22.0 * t) * (1 + 0.3 * rng.standard_normal(t.size))
+    a_lco, a0, sigma = 1.2, 5e-4, 1.8  # growing towards a cycle beyond the wall
+    amp = a_lco / np.sqrt(1 + (a_lco**2 / a0**2 - 1) * np.exp(-2 * sigma * np.clip(t - 12.0, 0, None)))
+    w = np.where(t >= 12.0, amp * np.sin(2 * np.pi * 22.0 * t), quiet)
+    (p,) = analyze_series(t, w, u, {}, abort_times_s=[18.08])["plateaus"]
+    assert p["status"] == "growing" and p["late_growth_rate_per_s"] > 1.0, p
+    (p,) = analyze_series(t, w, u, {})["plateaus"]
+    assert p["status"] == "lco"  # (the irregular rule, unchanged without an abort)

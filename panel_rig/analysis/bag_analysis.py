@@ -55,6 +55,7 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -91,6 +92,10 @@ class Criteria:
     onset_min_windows: int = 4
     onset_min_r2: float = 0.9
 
+
+#: a plateau that ends this long (s) after a rig abort or less was ended by it (the abort winds the tunnel off, and
+#: the plateau ends within a few samples as the airspeed leaves it)
+ABORT_END_S = 0.5
 
 #: the statuses of a plateau below the flutter speed
 STABLE = ("decaying", "stationary", "quiet")
@@ -253,8 +258,8 @@ def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sus
 
 
 def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
-                    i0: int, i1: int, crit: Criteria = Criteria()) -> dict[str, Any]:
-    """Metrics of one plateau [i0, i1) (see the module docstring)."""
+                    i0: int, i1: int, crit: Criteria = Criteria(), aborted: bool = False) -> dict[str, Any]:
+    """Metrics of one plateau [i0, i1) (see the module docstring); ``aborted``: the rig aborted at its end."""
     t, w, dt = t_s, tip_w_over_L, mean_dt(t_s)
     t0, t1 = float(t[i0]), float(t[i1 - 1])
     f0 = _free_start(commands, t0, t1, crit)
@@ -284,6 +289,10 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     u = airspeed_mps[i0:i1]
     status = _status(rms_late, float(env.max()) if env.size else 0.0, rate, rate_late, sustain, _log_fit_r2(env), crit,
                      tapped=f0 > t0, wind_off=float(np.mean(u)) <= crit.min_extrapolation_airspeed_mps)
+    if aborted and status == "lco" and rate_late > crit.max_steady_rate_per_s:
+        # still growing when the rig stopped it at its tip limit: no cycle was reached (a panel that grew from a
+        # closed loop's quiet into the wall, +1.8 1/s over its last 5 s, was "lco" by the irregular rule)
+        status = "growing"
     if status == "quiet" or rms_late <= crit.quiet_rms:  # the peak of a sensor's noise is no frequency of the
         freq = float("nan")  # panel (it read 100-240 Hz; 161 Hz in a wind-off plateau's noise after a decay)
     else:  # a window shorter than MIN_PERIODS periods has no resolved peak (a 5 s window read 0.24 Hz)
@@ -348,11 +357,14 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
 
 # ---------------------------------------------------------------------------------- a whole run
 def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
-                   crit: Criteria = Criteria()) -> dict[str, Any]:
-    """Plateaus (numbered from 1), their metrics and the onset estimate of one run's series."""
+                   crit: Criteria = Criteria(), abort_times_s: Sequence[float] = ()) -> dict[str, Any]:
+    """Plateaus (numbered from 1), their metrics and the onset estimate of one run's series; ``abort_times_s``:
+    when the rig aborted (a plateau that ends within ABORT_END_S of one ended by it)."""
     ranges = cut_at_setpoint_changes(t_s, airspeed_mps, commands.get("airspeed_cmd", []),
                                      find_plateaus(t_s, airspeed_mps, crit), crit)
-    plateaus = [analyze_plateau(t_s, tip_w_over_L, airspeed_mps, commands, i0, i1, crit) for i0, i1 in ranges]
+    plateaus = [analyze_plateau(t_s, tip_w_over_L, airspeed_mps, commands, i0, i1, crit,
+                                aborted=any(t_s[i0] <= a <= t_s[i1 - 1] + ABORT_END_S for a in abort_times_s))
+                for i0, i1 in ranges]
     for k, p in enumerate(plateaus, start=1):
         p["index"] = k
         p["lco"] = p["status"] == "lco"
