@@ -582,7 +582,7 @@ def test_bifurcation_summary_warns_of_cases_that_never_settled(base):
     warns under it, in `key value` pairs."""
     import xarray as xr
 
-    from panel_rig.studies.command import print_branches
+    from panel_rig.studies.command import branch_lines
     from panel_rig.studies.report import summarize
 
     study = parse_spec({"kind": "bifurcation", "airspeeds": [10.0, 12.0], "variants": ["exact"],
@@ -594,10 +594,10 @@ def test_bifurcation_summary_warns_of_cases_that_never_settled(base):
                      "steady_after_s": ("case", np.full(u.size, np.nan))})
     (row,) = summarize(study, ds)["branches"]
     assert row["hysteresis"] and row["unsettled_cases"] == u.size
-    lines = print_branches([row])
+    lines = branch_lines([row])
     assert lines[0].startswith("  branch  variant exact, ") and "{" not in lines[0] and "None" not in lines[0], lines
     assert lines[1].startswith(f"  warning: {u.size} case(s) of this chain never settled"), lines
-    assert print_branches([{**row, "unsettled_cases": 0}])[1:] == []
+    assert branch_lines([{**row, "unsettled_cases": 0}])[1:] == []
 
 
 def test_bifurcation_diverged_marks_sit_above_every_lco_point(base, tmp_path, monkeypatch):
@@ -790,7 +790,7 @@ def test_sensitivity_of_cases_that_all_rank_alike_is_said_to_be_undefined(base, 
     import xarray as xr
 
     from panel_rig.studies.cases import UNSTABLE_AT_START
-    from panel_rig.studies.command import print_sensitivity
+    from panel_rig.studies.command import sensitivity_lines
     from panel_rig.studies.report import NO_SPREAD, sensitivity_ranking
 
     study = parse_spec({"kind": "uncertainty", "samples": 4, "seed": 1,
@@ -802,7 +802,7 @@ def test_sensitivity_of_cases_that_all_rank_alike_is_said_to_be_undefined(base, 
     rank = sensitivity_ranking(study, ds)
     assert rank == [{"key": "structure.damping_ratio", "measure": NO_SPREAD, "value": None, "importance": 0.0}]
     assert not [w for w in recwarn if "Constant" in type(w.message).__name__]
-    assert print_sensitivity(rank) == [f"  sensitivity  {'structure.damping_ratio':28s} {NO_SPREAD}"]
+    assert sensitivity_lines(rank) == [f"  sensitivity  {'structure.damping_ratio':28s} {NO_SPREAD}"]
 
 
 def test_the_table_shows_summary_numbers_rounded_and_percentiles_by_name():

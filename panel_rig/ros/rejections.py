@@ -36,7 +36,7 @@ class RejectionLog:
         for topic in [t for t in self._held if now_s - self._logged.get(t, -math.inf) >= self.period_s]:
             n, last = self._held.pop(topic)
             self._logged[topic] = now_s
-            lines.append(f"{self._summary(topic, n, last)}")
+            lines.append(self._summary(topic, n, last))
         return lines
 
     def _summary(self, topic: str, n: int, last: str) -> str:

@@ -86,9 +86,9 @@ def run(args: Any) -> int:
     for k, v in summary.items():
         if k not in ("kind", "branches", "sensitivity"):
             print(f"  {k:24s} {_shown(v)}")
-    for line in print_sensitivity(summary.get("sensitivity", [])):
+    for line in sensitivity_lines(summary.get("sensitivity", [])):
         print(line)
-    for line in print_branches(summary.get("branches", [])):
+    for line in branch_lines(summary.get("branches", [])):
         print(line)
     print(f"results: {info['store'].path}  (xarray.open_zarr(PATH, consolidated=False))")
     for f in files:
@@ -96,13 +96,13 @@ def run(args: Any) -> int:
     return 0
 
 
-def print_sensitivity(rank: list[dict[str, Any]]) -> list[str]:
+def sensitivity_lines(rank: list[dict[str, Any]]) -> list[str]:
     """The table's sensitivity lines: key, measure and its value (none when the measure has no value)."""
     return [f"  sensitivity  {r['key']:28s} {r['measure']}" + ("" if r["value"] is None else f" {r['value']:+.3f}")
             for r in rank]
 
 
-def print_branches(rows: list[dict[str, Any]]) -> list[str]:
+def branch_lines(rows: list[dict[str, Any]]) -> list[str]:
     """The table's bifurcation lines, one per variant and grid point: ``key value`` pairs (it printed Python dicts),
     and a warning line under a chain with cases that never settled."""
     out = []
