@@ -331,9 +331,12 @@ def node_run(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) 
     """Node in fast mode (stiffness variant, recording + live Rerun): 11.3 m/s, a tap, 30 s, SIGINT."""
     tmp = tmp_path_factory.mktemp("node_run")
     env = ros_env
+    # at most 20x: the run's ~32 simulated s then last >= 1.6 s of wall time, three periods of the node's 2 Hz
+    # /diagnostics (uncapped, a fast machine marched them in under 0.5 s wall and the bag held no /diagnostics)
     cmd = [sys.executable, "-m", "panel_rig.ros.rig_node", "--fast", "--ros-args", "-r", "__ns:=/rig",
            "-p", "model.variant:=stiffness", "-p", f"tunnel.time_constant_s:={NODE_TAU_S}", "-p", "record:=true",
-           "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}"]
+           "-p", f"bag_dir:={tmp / 'bags'}", "-p", f"rerun:=save:{tmp / 'x.rrd'}",
+           "-p", "fast_max_realtime_factor:=20.0"]
     client = _Client(int(env["ROS_DOMAIN_ID"]))
     t_wall = time.monotonic()
     with open(tmp / "node.log", "w") as log:
