@@ -271,7 +271,8 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     # that mean in it made a panel at rest under the force an "lco" (the envelope's windows each about their own
     # mean: an LCO's own offset, the exact panel's, is no envelope either)
     mean = float(np.mean(late))
-    freq = dominant_frequency_hz(late, mean_dt(t[i1 - late.size : i1]))
+    dt_late = mean_dt(t[i1 - late.size : i1])
+    freq = dominant_frequency_hz(late, dt_late)
     win_s = max(crit.envelope_window_s, 4.0 / freq) if freq > 0 else crit.envelope_window_s
     # at least MIN_ENVELOPE_WINDOWS over the free response: the turbulence's response in a long dwell after a tap
     # put a 0.43 Hz peak in the last 5 s, a 9.4 s window left under 3 of them, and the tap's decay rate was 0
@@ -296,7 +297,7 @@ def analyze_plateau(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.
     if status == "quiet" or rms_late <= crit.quiet_rms:  # the peak of a sensor's noise is no frequency of the
         freq = float("nan")  # panel (it read 100-240 Hz; 161 Hz in a wind-off plateau's noise after a decay)
     else:  # a window shorter than MIN_PERIODS periods has no resolved peak (a 5 s window read 0.24 Hz)
-        freq = resolved_frequency_hz(freq, late.size * mean_dt(t[i1 - late.size : i1]))
+        freq = resolved_frequency_hz(freq, late.size * dt_late)
     return {
         "t_start_s": round(t0, 4), "t_end_s": round(t1, 4), "free_from_s": round(float(t[j0]), 4),
         "measure_from_s": round(float(t[i1 - late.size]), 4),

@@ -202,6 +202,11 @@ def _reading(bag_dir: Path, path: Path) -> Iterator[None]:
         ) from None
 
 
+def not_a_recording(path: Path, scan: McapScan) -> str:
+    """What an MCAP file with no header and no chunk (``scan.recoverable`` false) is: empty, or not MCAP."""
+    return f"{path} is empty (0 bytes)" if scan.size == 0 else f"{path} is not an MCAP file (no valid header, no chunk)"
+
+
 def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any], McapScan], None] | None = None) -> McapScan:
     """Scan the bag's MCAP (every chunk CRC, summary, index); raise CorruptBagError if not intact.
 
@@ -214,8 +219,7 @@ def verify_bag(bag_dir: Path, on_chunk: Callable[[list[Any], McapScan], None] | 
     if not scan.ok:
         _refuse_live(bag_dir)
         if not scan.recoverable:  # `bag recover` would refuse it too: no header and no chunk to rebuild from
-            what = "is empty (0 bytes)" if scan.size == 0 else "is not an MCAP file (no valid header, no chunk)"
-            raise RecordingError(f"{path} {what}: no recording in it to read or to rebuild")
+            raise RecordingError(f"{not_a_recording(path, scan)}: no recording in it to read or to rebuild")
         if scan.truncated and not scan.bad_chunks:
             what = f"{path} has no summary (recorder killed?)"
         else:

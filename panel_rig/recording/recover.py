@@ -37,7 +37,7 @@ from panel_rig.recording.metadata import (
     read_metadata,
     write_metadata,
 )
-from panel_rig.recording.reader import find_mcap, require_bag_dir, single_mcap
+from panel_rig.recording.reader import find_mcap, not_a_recording, require_bag_dir, single_mcap
 from panel_rig.recording.writer import (
     CHUNK_SIZE_BYTES,
     LIBRARY,
@@ -265,8 +265,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         mcap_path, bad_metadata = single_mcap(bag_dir), exc
     scan = scan_mcap(mcap_path)
     if not scan.recoverable:
-        raise RecordingError(f"{mcap_path} is empty (0 bytes): nothing to rebuild" if scan.size == 0
-                             else f"{mcap_path} is not an MCAP file (no valid header)")
+        raise RecordingError(f"{not_a_recording(mcap_path, scan)}: nothing to rebuild")
     if bad_metadata is not None:
         damaged = _free_name(bag_dir / (METADATA_FILE + ".broken"))
         os.replace(bag_dir / METADATA_FILE, damaged)
