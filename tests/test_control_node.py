@@ -266,6 +266,11 @@ def test_controller_follows_a_restarted_rig_and_takes_live_parameters(ros_env: d
         # refused `-p gain_nspm2:=1` with "expecting type 'DOUBLE'")
         assert node.set_parameters([Parameter("gain_nspm2", value=2)])[0].successful
         assert node.law.gain_nspm2 == 2.0 and node.get_parameter("gain_nspm2").value == 2.0
+        # a misspelt name (the parameter service calls set_parameters_atomically): refused, named, the nearest
+        # name offered (rclpy's own reason was "Invalid access to undeclared parameter(s): []")
+        typo = node.set_parameters_atomically([Parameter("gain_nspm", value=1.0)])
+        assert not typo.successful and "'gain_nspm'" in typo.reason and "'gain_nspm2'" in typo.reason, typo.reason
+        assert node.law.gain_nspm2 == 2.0
         other = Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=1),
                                                              Parameter("max_force_npm", value=3)])
         assert (other.law.gain_nspm2, other.max_force) == (1.0, 3.0)

@@ -430,6 +430,8 @@ def test_live_parameters(fast_node: subprocess.Popen, client: Client) -> None:
     # rclpy takes use_sim_time live, and a real-time node then waits for a /clock nobody publishes
     clock = set_param("use_sim_time", True)
     assert not clock.successful and "read at start" in clock.reason, clock.reason
+    typo = set_param("publish_rate_hx", 400.0)  # rclpy's reason named no parameter: "...parameter(s): []"
+    assert not typo.successful and "'publish_rate_hx'" in typo.reason and "'publish_rate_hz'" in typo.reason, typo.reason
     assert set_param("safety.max_airspeed_mps", 5.0).successful
     before = int(client.next_diag()["rejected_commands"])
     client.publish("airspeed_cmd", 6.0)

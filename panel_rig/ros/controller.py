@@ -36,7 +36,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from panel_rig.analysis.control import DESIGN_DELAY_S, ControlLaw, DiscreteLaw
 from panel_rig.argparsing import OneLineParser
 from panel_rig.rig.control import ControlSettings
-from panel_rig.ros.params import as_declared
+from panel_rig.ros.params import as_declared, undeclared_problem
 from panel_rig.ros.session import ros_arguments_problem, ros_session
 
 NODE_NAME = "panel_rig_controller"
@@ -129,6 +129,13 @@ class Controller(Node):
             f"designed on the ROM: gain {design.law.gain_nspm2:g} N s/m^2; predicted flutter speed "
             f"{design.open_loop_flutter_mps:.2f} -> {design.closed_loop_flutter_mps or math.inf:.2f} m/s")
         return design.law.gain_nspm2
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
+        """As rclpy's, except that a name the node does not declare is refused with a reason that names it."""
+        problem = undeclared_problem([prm.name for prm in parameter_list], self.list_parameters([], 0).names)
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
+        return super().set_parameters_atomically(parameter_list)
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         """Live changes: all checked first, then applied together (the law keeps its filter state)."""

@@ -49,6 +49,7 @@ from panel_rig.ros.params import (
     live_change_problem,
     parameter_table,
     publish_rate_problem,
+    undeclared_problem,
 )
 from panel_rig.ros.publishing import SHAPE_POINTS, ReadingPublisher, ReadingTopics, Recording
 from panel_rig.ros.rejections import RejectionLog
@@ -238,7 +239,11 @@ class RigNode(Node):
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """As rclpy's, except that setting a read-only parameter to the value it has is accepted as a no-op,
-        so ``ros2 param load`` of the file the node started with (or of a ``ros2 param dump``) succeeds."""
+        so ``ros2 param load`` of the file the node started with (or of a ``ros2 param dump``) succeeds, and that
+        a name the node does not declare is refused with a reason that names it."""
+        problem = undeclared_problem([prm.name for prm in parameter_list], self.list_parameters([], 0).names)
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
         changing = [prm for prm in parameter_list if not self._unchanged_read_only(prm)]
         if not changing:
             return SetParametersResult(successful=True, reason="unchanged (read-only)")

@@ -8,6 +8,7 @@ these defaults by a test.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -191,6 +192,20 @@ def publish_rate_problem(publish_rate_hz: float, physics_dt_s: float) -> str | N
         return (f"publish_rate_hz: {publish_rate_hz:g} Hz is above the physics step rate {step_hz:g} Hz "
                 f"(dt = {physics_dt_s:g} s): readings would repeat; publish at most once a step")
     return None
+
+
+def undeclared_problem(names: Sequence[str], declared: Sequence[str]) -> str | None:
+    """The reason a set of parameters is refused when a name is not one of the node's ``declared`` ones, naming it
+    and the nearest declared name (rclpy's own reason listed no name: "undeclared parameter(s): []")."""
+    known = set(declared)
+    unknown = [name for name in names if name not in known]
+    if not unknown:
+        return None
+    parts = []
+    for name in unknown:
+        near = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+        parts.append(f"{name!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
+    return (f"not a parameter of this node: {', '.join(parts)}; `ros2 param list` lists its parameters")
 
 
 def as_declared(table: Mapping[str, tuple[Any, ParameterDescriptor]], prm: Parameter) -> Parameter:
