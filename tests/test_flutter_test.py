@@ -427,6 +427,32 @@ def test_a_start_the_rig_would_refuse_exits_2_before_anything_is_recorded(tmp_pa
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 
+@pytest.mark.parametrize("damping_ratio", ["0.002", "0"])
+def test_a_rom_window_at_low_airspeed_is_no_flutter_speed_to_plan_from(tmp_path, capsys, damping_ratio):
+    """With structure.damping_ratio 0.002 the ROM's second mode is unstable from 1.05 to ~1.9 m/s only (stable again
+    up to 9.6 m/s): the test took 1.05 m/s as the model's U_f, started at 0.53 m/s and ended "flutter mode not
+    identified" (exit 1); with no damping it ran a point at 0.000 m/s. Now: status 2, one line, nothing recorded."""
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--in-process", "--set", f"structure.damping_ratio={damping_ratio}", "--dwell", "20",
+                 "--bag-dir", str(tmp_path / "bags"), "--plot", str(tmp_path / "vg.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "stable again at" in err and "not a flutter boundary" in err, err
+    assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
+
+
+def test_a_flutter_boundary_is_not_a_window():
+    """The configurations of the validation stay unstable above their U_f up to 60 m/s (no false refusal)."""
+    from panel_rig.analysis.vg import model_flutter_speed, stable_again_mps
+    from panel_rig.model.stepper import Stepper
+
+    for changes in ({}, {"damping_ratio": 0.01}, {"panel_thickness_m": 0.0004}):
+        model = Stepper(load_config(None).replace(**changes)).model
+        uf, mode = model_flutter_speed(model)
+        assert stable_again_mps(model, mode, uf) is None, changes
+
+
 def test_a_ctrl_c_during_a_dwell_leaves_a_whole_bag_whose_replay_is_the_test_s(tmp_path, capsys, monkeypatch):
     """Ctrl-C landing while a block of readings is handed to the recording (here: as the block is emitted, in the
     second point's dwell). Before, the KeyboardInterrupt cut the hand-over: one such bag's summary counted a message

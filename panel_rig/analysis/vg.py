@@ -175,6 +175,22 @@ def model_flutter_speed(model: AeroelasticModel, aero: str = "rom", rom_modes: i
     return None
 
 
+def stable_again_mps(model: AeroelasticModel, mode: int, flutter_speed_mps: float, aero: str = "rom",
+                     rom_modes: int | None = None, u_max: float = 60.0, step_mps: float = 0.5) -> float | None:
+    """The first airspeed of the scan (every ``step_mps`` up to ``u_max``) above ``flutter_speed_mps`` where the
+    tracked ``mode`` (1-based) is stable again: the crossing opened only a window of instability. None when the
+    mode stays unstable, as past a flutter boundary (every configuration of docs/validation.md up to 60 m/s).
+
+    With little structural damping the aero ROM takes the second mode's damping below zero at 1-2 m/s (a dip of
+    ~0.0035, where the reduced frequency is high and the ROM least accurate; the full lattice has no such window)."""
+    tracker = ModalTracker(model, aero, rom_modes)
+    for u in np.arange(step_mps, u_max + 1e-9, step_mps):
+        zeta = pole_damping_ratio(tracker.poles(u))[mode - 1]
+        if u > flutter_speed_mps and zeta > 0:
+            return float(u)
+    return None
+
+
 #: modes whose damping ratio stays below this over the diagram set the V-g panel's (linear) limits
 LIGHT_DAMPING = 0.1
 

@@ -146,19 +146,35 @@ def default_plan(uf_model_mps: float, margin: float = 0.1, start_mps: float | No
                                step_mps=0.1 * uf_model_mps, margin=margin, **changes)
 
 
+def pretest_flutter_speed(model: Any) -> tuple[float, int]:
+    """The model's linear U_f (m/s) and flutter mode (1-based) that a test's plan is made from. ValueError when the
+    model does not flutter below 60 m/s, or when its first crossing opens only a window (the mode is stable again
+    above it): the plan would start at half a window edge of 1 m/s, and with no structural damping at 0 m/s."""
+    from panel_rig.analysis.vg import model_flutter_speed, stable_again_mps
+
+    found = model_flutter_speed(model)
+    if found is None:
+        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
+    uf, mode = found
+    again = stable_again_mps(model, mode, uf)
+    if again is not None:
+        raise ValueError(
+            f"the pre-test analysis finds mode {mode} unstable from {uf:.3f} m/s and stable again at {again:g} m/s: "
+            "an unstable window of the aero ROM at low airspeed (least accurate there, where the reduced frequency "
+            "is high), not a flutter boundary to clear; it opens when structure.damping_ratio is too low to cover "
+            "the ROM's dip (`panel-rig flutter --vg 0.5:20:0.25` shows it)")
+    return uf, mode
+
+
 def pretest_plan(cfg: PanelConfig, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
                  dwell_s: float | None = None, settle_s: float | None = None, max_points: int | None = None
                  ) -> tuple[Any, float, int, FlutterTestSettings]:
     """The pre-test analysis: a stepper of ``cfg``, the model's linear U_f (m/s) and flutter mode, and the plan
     from them (None: the plan's default). Raises ValueError when the model does not flutter."""
-    from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.model.stepper import Stepper
 
     st = Stepper(cfg, variant=variant)
-    found = model_flutter_speed(st.model)
-    if found is None:
-        raise ValueError("the model does not flutter below 60 m/s: nothing to clear")
-    uf, mode = found
+    uf, mode = pretest_flutter_speed(st.model)
     changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
                if v is not None}
     return st, uf, mode, default_plan(uf, margin, start_mps, **changes)
@@ -202,14 +218,10 @@ def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSet
                on_point: Callable[[TestPoint, Decision], None] | None = None
                ) -> tuple[FlutterTestResult, float]:
     """The whole procedure on a fresh in-process Rig of ``cfg``; returns (result, the model's linear U_f)."""
-    from panel_rig.analysis.vg import model_flutter_speed
     from panel_rig.model.stepper import Stepper
 
     st = Stepper(cfg, variant=variant)
-    found = model_flutter_speed(st.model)
-    if found is None:
-        raise ValueError("the model does not flutter below 60 m/s")
-    uf, mode = found
+    uf, mode = pretest_flutter_speed(st.model)
     settings = settings or default_plan(uf, margin, start_mps)
     rig = node_equivalent_rig(cfg, st, uf)
     return run_procedure(RigMeasure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
