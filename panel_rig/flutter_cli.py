@@ -206,7 +206,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         node_equivalent_rig,
         pretest_plan,
         start_problem,
-        start_warning,
+        start_warnings,
         take_late_point,
     )
     from panel_rig.ros import messages
@@ -217,8 +217,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     problem = start_problem(settings, max_test_airspeed_mps(uf))
     if problem is not None:  # before the bag is made: nothing half-recorded is left behind
         raise ValueError(problem)
-    warning = start_warning(start_mps, uf, margin)
-    if warning is not None and progress is not None:
+    for warning in start_warnings(cfg, start_mps, uf, margin) if progress is not None else ():
         progress(warning)
     sinks: list[Any] = []
     writer = bag_sink = None

@@ -1,6 +1,8 @@
 """The flutter-test procedure core (panel_rig.analysis.flutter_test): decisions on synthetic test points, and the
 whole procedure on the in-process Rig with the default turbulence and sensor (no ROS)."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -451,6 +453,51 @@ def test_a_flutter_boundary_is_not_a_window():
         model = Stepper(load_config(None).replace(**changes)).model
         uf, mode = model_flutter_speed(model)
         assert stable_again_mps(model, mode, uf) is None, changes
+
+
+def test_the_flutter_watch_is_an_rms_not_one_noisy_sample_and_does_not_depend_on_the_blocks():
+    """Sensor noise of 2 mm RMS (accepted: sensor.tip_noise_m <= 0.1 m) put single samples past 0.02 L = 5.4 mm and
+    a subcritical point was reported as flutter; the watch takes a 0.25 s RMS. A growing oscillation is caught
+    at the same sample however the samples arrive (one block, blocks, one reading at a time)."""
+    from panel_rig.analysis.flutter_test import FLUTTER_TIP_FRACTION, FlutterWatch
+
+    L = 0.27
+    t = np.arange(0.0, 205.0, 1 / 512)
+    noise = 0.002 * np.random.default_rng(3).standard_normal(t.size)
+    assert np.max(np.abs(noise)) > FLUTTER_TIP_FRACTION * L  # the old test's peak: "fluttered"
+    assert not FlutterWatch(L).take(t, noise)
+    tt = t[t < 20.0]
+    growing = 1e-4 * np.exp(0.5 * tt) * np.sin(2 * np.pi * 23.0 * tt)  # reaches 0.02 L after ~7.9 s
+
+    def first_hit(chunks):
+        watch = FlutterWatch(L)
+        for idx in chunks:
+            if watch.take(tt[idx], growing[idx]):
+                return int(idx[-1])
+        return None
+
+    whole = first_hit([np.arange(tt.size)])
+    blocks = first_hit(np.array_split(np.arange(tt.size), 37))
+    one_by_one = first_hit([np.array([k]) for k in range(tt.size)])
+    assert whole is not None and 7.0 < tt[one_by_one] < 9.0, tt[one_by_one]
+    assert tt[one_by_one] <= tt[blocks]  # a block ends after the sample that fluttered
+    blocks_idx = np.array_split(np.arange(tt.size), 37)
+    assert any(one_by_one in b for b in blocks_idx if b[-1] == blocks)  # caught in the block holding that sample
+
+
+def test_noisy_sensor_is_no_flutter_and_is_warned_of(tmp_path, capsys):
+    """`flutter-test --in-process --dwell 20 --max-points 2 --set sensor.tip_noise_m=0.002` printed "point 1:
+    5.240 m/s: fluttered at 5.240 m/s" (exit 1) from the noise's peaks; the true tip was ~1e-4 L. The noise (400
+    times the turbulence response) hides the flutter mode: the test stops without clearance, and says why."""
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--in-process", "--dwell", "20", "--max-points", "2", "--set",
+                 "sensor.tip_noise_m=0.002", "--json", "--bag-dir", str(tmp_path), "--plot", str(tmp_path / "vg.png")])
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert code == 1 and not out["fluttered"] and len(out["test_points"]) == 1, captured.err
+    assert out["stop_reason"].startswith("flutter mode not identified at 5.240 m/s"), out["stop_reason"]
+    assert "warning: sensor.tip_noise_m 0.002 m is over half the flutter monitor's level" in captured.err
 
 
 def test_a_ctrl_c_during_a_dwell_leaves_a_whole_bag_whose_replay_is_the_test_s(tmp_path, capsys, monkeypatch):

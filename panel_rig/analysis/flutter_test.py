@@ -414,9 +414,44 @@ def resample_window(t_s: np.ndarray, y: np.ndarray, t_from_s: float, t_to_s: flo
     return np.interp(grid, t[inside], y[inside]), dt  # the window's samples only: live and replay agree
 
 
-#: a plateau counts as fluttered (not subcritical) when the measured tip exceeds this fraction of the panel length
-#: (the turbulence response below U_f is tens of micrometres, an LCO tenths of L)
+#: a plateau counts as fluttered (not subcritical) when the measured tip's RMS over a FLUTTER_WINDOW_S window
+#: exceeds that of a sine of this amplitude, in panel lengths (the turbulence response below U_f is tens of
+#: micrometres, an LCO tenths of L): an RMS, not one sample's peak, which 2 mm of sensor noise (an accepted
+#: sensor.tip_noise_m) passed at a subcritical point; noise alone reaches it from ~0.011 L RMS (3 mm at L = 0.27 m)
 FLUTTER_TIP_FRACTION = 0.02
+FLUTTER_WINDOW_S = 0.25  # six periods of the flutter mode (~23 Hz); ~128 samples at the node's 512 Hz
+
+
+class FlutterWatch:
+    """Whether one plateau's measured tip fluttered (FLUTTER_TIP_FRACTION), fed in time order a block or a reading
+    at a time: once the samples of a whole FLUTTER_WINDOW_S window, (t - W, t], have a mean square above
+    (FLUTTER_TIP_FRACTION L)^2 / 2. A new plateau takes a new watch (its first window is full W after its first
+    sample); the live monitor, the in-process driver and the bag's replay all decide with it."""
+
+    def __init__(self, panel_length_m: float) -> None:
+        self.limit_m2 = 0.5 * (FLUTTER_TIP_FRACTION * panel_length_m) ** 2
+        self.fluttered = False
+        self._t0: float | None = None
+        self._t, self._sq = np.zeros(0), np.zeros(0)  # the samples a later window still needs
+
+    def take(self, t_s: np.ndarray, tip_m: np.ndarray) -> bool:
+        """Add samples (s, m); returns whether the plateau has fluttered so far."""
+        t_new = np.asarray(t_s, float)
+        if self.fluttered or t_new.size == 0:
+            return self.fluttered
+        if self._t0 is None:
+            self._t0 = float(t_new[0])
+        t = np.concatenate([self._t, t_new])
+        sq = np.concatenate([self._sq, np.asarray(tip_m, float) ** 2])
+        total = np.concatenate([[0.0], np.cumsum(sq)])
+        k = np.arange(self._t.size, t.size)  # the new samples, each the end of a window
+        j = np.searchsorted(t, t[k] - FLUTTER_WINDOW_S, side="right")
+        whole = t[k] - FLUTTER_WINDOW_S >= self._t0
+        mean_sq = (total[k + 1] - total[j]) / (k + 1 - j)
+        self.fluttered = bool(np.any(whole & (mean_sq > self.limit_m2)))
+        keep = t > t[-1] - FLUTTER_WINDOW_S
+        self._t, self._sq = t[keep], sq[keep]
+        return self.fluttered
 #: a replayed window is a test point only if the measured airspeed's median is within this of the command:
 #: 0.05 m/s (the plateau tolerance of the bag analysis) + 1 % (the tunnel's turbulence u' is 0.1 % r.m.s.)
 AIRSPEED_MATCH_MPS, AIRSPEED_MATCH_REL = 0.05, 0.01
@@ -424,12 +459,12 @@ AIRSPEED_MATCH_MPS, AIRSPEED_MATCH_REL = 0.05, 0.01
 
 def _fluttered(t: np.ndarray, y: np.ndarray, t_cmd_s: float, t_from_s: float, t_end_s: float,
                force_npm: np.ndarray | None, panel_length_m: float) -> bool:
-    """The tip exceeded FLUTTER_TIP_FRACTION x L on the plateau: from the command on (as the live monitor watches),
-    or, when the shaker pushed during the plateau (a tap's forced response may pass that size), in the identified
-    window only."""
+    """The plateau fluttered (:class:`FlutterWatch`): from the samples after the command on (as the live monitor and
+    the in-process driver watch), or, when the shaker pushed during the plateau (a tap's forced response may pass
+    that size), in the identified window only."""
     tapped = force_npm is not None and bool(np.any(np.asarray(force_npm)[(t >= t_cmd_s) & (t < t_end_s)] != 0))
-    watch = (t >= (t_from_s if tapped else t_cmd_s)) & (t < t_end_s)
-    return bool(watch.any() and np.max(np.abs(y[watch])) > FLUTTER_TIP_FRACTION * panel_length_m)
+    watch = ((t >= t_from_s) if tapped else (t > t_cmd_s)) & (t < t_end_s)
+    return FlutterWatch(panel_length_m).take(t[watch], y[watch])
 
 
 def _tunnel_at(t: np.ndarray, airspeed_mps: np.ndarray | None, t0_s: float, t1_s: float, u_mps: float) -> bool:
@@ -486,7 +521,7 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
     ``min_dwell_s``, each above the last point taken (a step down is skipped, as the live monitor skips it), up to
-    the first one whose tip exceeds FLUTTER_TIP_FRACTION x L
+    the first one that fluttered (:class:`FlutterWatch`)
     (:func:`_fluttered`). Given the measured ``airspeed_mps`` (m/s, on ``t_s``), a window whose median is not
     within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
     refused, an aborted rig). ``complete_only`` (a recording of the monitor, whose points each took a whole

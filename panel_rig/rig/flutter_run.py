@@ -13,10 +13,12 @@ import numpy as np
 from panel_rig.analysis.flutter_test import (
     DEFAULT_SETTLE_S,
     FLUTTER_TIP_FRACTION,
+    FLUTTER_WINDOW_S,
     MIN_DWELL_S,
     Decision,
     FlutterTestResult,
     FlutterTestSettings,
+    FlutterWatch,
     TestPoint,
     bands_from_model,
     decide,
@@ -33,11 +35,6 @@ from panel_rig.rig.safety import SafetyLimits
 #: a test point's run-in and dwell (simulated s): the bounds the CLI and the node's flutter_test.* parameters share
 MAX_SETTLE_S = 1e4
 MAX_DWELL_S = 1e5  # (MIN_DWELL_S: the replay's, analysis.flutter_test)
-
-
-def fluttered(tip_m: np.ndarray, panel_length_m: float, aborted: bool) -> bool:
-    """The rig aborted, or the tip exceeded FLUTTER_TIP_FRACTION x L."""
-    return bool(aborted or (tip_m.size and np.max(np.abs(tip_m)) > FLUTTER_TIP_FRACTION * panel_length_m))
 
 
 #: simulated seconds of readings marched and handed to the sinks at a time: a stop between two such blocks leaves
@@ -63,7 +60,7 @@ class RigMeasure:
     The run-in and the dwell are marched and handed to the rig's sinks in blocks of ``EMIT_BLOCK_S``, each inside
     ``atomic()`` (e.g. :func:`panel_rig.processes.signals_deferred`: a stop waits for the block's end). ``last``
     is the newest completed dwell, set with its last block: a test stopped after it but before its point was taken
-    can still take it (as the live client takes the node's late result). A plateau that flutters (:func:`fluttered`
+    can still take it (as the live client takes the node's late result). A plateau that flutters (:class:`FlutterWatch`
     in a block, run-in included) is marched no further, as the node's monitor reports it at once and the client
     winds the tunnel off: ``flutter_time_s`` is the rig's time at the end of that block."""
 
@@ -74,6 +71,7 @@ class RigMeasure:
         self.per_block = max(1, int(round(EMIT_BLOCK_S / self.dt_s)))
         self.last: Dwell | None = None
         self._newest = np.zeros(0), np.zeros(0)  # the newest sample marched so far, (s, m) (none before the first)
+        self._watch = FlutterWatch(rig.panel_length_m)
         self.flutter_time_s: float | None = None
         self.plateau_start_s = 0.0  # the rig's time at the newest airspeed command (s)
 
@@ -92,7 +90,7 @@ class RigMeasure:
                 self.rig.emit_block(blk)
                 times.append(np.asarray(blk.time_s, dtype=float))
                 tips.append(np.asarray(blk.tip_w_m, dtype=float))
-                if fluttered(tips[-1], self.rig.panel_length_m, self.rig.state != RUNNING):
+                if self._watch.take(times[-1], tips[-1]) or self.rig.state != RUNNING:
                     self.flutter_time_s = self.rig.time_s
                     break
                 if done is not None and start + self.per_block >= n_samples:
@@ -104,6 +102,7 @@ class RigMeasure:
         if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
             raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
         self.flutter_time_s, self.plateau_start_s = None, self.rig.time_s
+        self._watch = FlutterWatch(self.rig.panel_length_m)  # the plateau's samples from the command on
         settle_t, settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
         if self.flutter_time_s is not None:
             return settle, self.dt_s, None, True
@@ -116,8 +115,7 @@ class RigMeasure:
             t_all, y_all = np.concatenate([before_t, dwell_t]), np.concatenate([before, dwell])
             self._newest = t_all[-1:], y_all[-1:]
             window, dt_s = resample_window(t_all, y_all, start_s, start_s + self.settings.dwell_s)
-            self.last = Dwell(u, window, dt_s, fluttered(np.concatenate([settle, dwell]), self.rig.panel_length_m,
-                                                         self.rig.state != RUNNING))
+            self.last = Dwell(u, window, dt_s, self._watch.fluttered or self.rig.state != RUNNING)
 
         _, dwell = self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
         if self.flutter_time_s is not None:
@@ -199,6 +197,23 @@ def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str 
             f"speed ({1.0 - margin:g} x {uf_mps:.3f} = {edge:.3f} m/s): the first point may flutter")
 
 
+def noise_warning(tip_noise_m: float, panel_length_m: float) -> str | None:
+    """A warning when the tip sensor's noise is over half the flutter monitor's level (:class:`FlutterWatch`): noise
+    alone reads as flutter from about 0.8 of it (200 s dwells of white noise: 1 in 10 at 0.79, all at 0.84)."""
+    level_m = FLUTTER_TIP_FRACTION * panel_length_m / np.sqrt(2.0)
+    if tip_noise_m <= 0.5 * level_m:
+        return None
+    return (f"warning: sensor.tip_noise_m {tip_noise_m:g} m is over half the flutter monitor's level (an RMS of "
+            f"{level_m * 1e3:.2f} mm over {FLUTTER_WINDOW_S:g} s, a sine of {FLUTTER_TIP_FRACTION:g} L); noise from "
+            f"about {0.8 * level_m * 1e3:.1f} mm reads as flutter")
+
+
+def start_warnings(cfg: PanelConfig, start_mps: float | None, uf_mps: float, margin: float) -> list[str]:
+    """The warnings a test prints before it starts (:func:`start_warning`, :func:`noise_warning`)."""
+    found = (start_warning(start_mps, uf_mps, margin), noise_warning(cfg.sensor_tip_noise_m, cfg.panel_length_m))
+    return [w for w in found if w is not None]
+
+
 def max_test_airspeed_mps(uf_mps: float) -> float:
     """A flutter test's airspeed limit (m/s): the node's default ``safety.max_airspeed_mps``, raised to 1.2 U_f (the
     tunnel's limit must not stop the approach of a stiffer panel's boundary)."""
@@ -233,8 +248,8 @@ class FlutterMonitorSink:
     drops the run-in [t_c, t_c + ``settle_s``), keeps the dwell [t_c + settle_s, t_c + settle_s + ``dwell_s``),
     and as soon as the dwell is complete (or, if the next command comes first, at that command when at least
     ``min_dwell_s`` was kept) identifies it (``identify_point``, bands from the model), updates the predictors
-    (``decide``) and calls ``publish(time_s, point, decision, fluttered=False)``. If the measured tip exceeds
-    FLUTTER_TIP_FRACTION x L or the rig aborts during the plateau (run-in included), it publishes at once with
+    (``decide``) and calls ``publish(time_s, point, decision, fluttered=False)``. If the measured tip fluttered
+    (:class:`FlutterWatch`) or the rig aborts during the plateau (run-in included), it publishes at once with
     ``fluttered=True`` (point without modes). ``waiting`` is true before the first command and from a published
     result to the next command (the node's fast-mode hold uses it: a run is then reproducible from its seed).
     Plateaus at U <= 0 and descents are not test points. The identification runs in the caller's thread (seconds
@@ -252,6 +267,7 @@ class FlutterMonitorSink:
                                             settle_s=settle_s, dwell_s=dwell_s)
         self.publish, self.settle_s, self.min_dwell_s, self.dwell_s = publish, settle_s, min_dwell_s, dwell_s
         self.panel_length_m = cfg.panel_length_m
+        self._watch = FlutterWatch(cfg.panel_length_m)  # the plateau in progress's (from each command)
         self.points: list[TestPoint] = []
         self.published = 0  # results published (points and flutter reports)
         self.waiting = True  # for the first command (a node holding for its client starts the clock with it)
@@ -279,7 +295,7 @@ class FlutterMonitorSink:
         self._newest = t[-1:], y[-1:]
         if self._u is None or self._u <= 0 or self.waiting:
             return
-        if fluttered(y, self.panel_length_m, state != RUNNING):
+        if self._watch.take(t, y) or state != RUNNING:
             self._report_flutter(float(t[-1]))
             return
         self._keep(t, y)
@@ -300,6 +316,7 @@ class FlutterMonitorSink:
         if not self.waiting:
             self.finish(time_s)
         self._u, self.plateau_start_s, self._t, self._y = float(value), float(time_s), [], []
+        self._watch = FlutterWatch(self.panel_length_m)
         self.waiting = False
         self._keep(*self._newest)  # with no run-in the window starts at the sample taken at the command
 

@@ -28,7 +28,7 @@ from panel_rig.processes import (
     spawn,
     stop,
 )
-from panel_rig.rig.flutter_run import max_test_airspeed_mps, pretest_plan, start_problem, start_warning
+from panel_rig.rig.flutter_run import max_test_airspeed_mps, pretest_plan, start_problem, start_warnings
 
 if TYPE_CHECKING:
     from panel_rig.analysis.flutter_test import FlutterTestResult
@@ -97,8 +97,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     # shared bags directory's run)
     run_dir = fresh_bag_dir(Path(bag_dir) if bag_dir is not None else Path(tempfile.gettempdir()), "flutter_test")
 
-    warning = start_warning(start_mps, uf, margin)
-    if warning is not None and progress is not None:
+    for warning in start_warnings(cfg, start_mps, uf, margin) if progress is not None else ():
         progress(warning)
     model = st.model
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
