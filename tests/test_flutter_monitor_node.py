@@ -67,4 +67,8 @@ def test_node_publishes_one_monitor_message_per_plateau(tmp_path, ros_env):
     # each plateau begins where the previous one was published (the node stops at the end of a fast block: < 0.13 s)
     assert starts[1:] == pytest.approx([s + SETTLE_S + DWELL_S for s in starts[:-1]], abs=0.13), starts
     assert wall < 90.0
+    # the operator shows each result as it comes (the README said it did; it did not subscribe)
+    assert [line.split(": ")[1] for line in op.monitor_lines] == ["6.000 m/s", "7.000 m/s", "8.000 m/s"], op.monitor_lines
+    assert all("Hz, zeta" in line and "monitor: " in line for line in op.monitor_lines), op.monitor_lines
+    assert "predicted U_f" in op.monitor_lines[2], op.monitor_lines
 

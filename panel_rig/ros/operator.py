@@ -38,6 +38,9 @@ from panel_rig.argparsing import OneLineParser
 from panel_rig.config import MAX_DURATION_S, ConfigError, load_yaml_file, number_if_text
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.processes import RIG_STARTUP_TIMEOUT_S, StopRequest
+from panel_rig.ros.flutter_monitor import STATUS_NAME as MONITOR_STATUS
+from panel_rig.ros.flutter_monitor import TOPIC as MONITOR_TOPIC
+from panel_rig.ros.flutter_monitor import monitor_line, parse_monitor
 from panel_rig.ros.messages import rig_status
 from panel_rig.ros.session import namespace_problem, ros_arguments_problem, ros_session
 from panel_rig.topics import REJECTED_SUFFIX
@@ -206,6 +209,9 @@ class Operator(Node):
                               durability=qos_profile_sensor_data.durability)
         self.create_subscription(PointStamped, "tip_displacement", self._on_tip, readings)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, DIAGNOSTICS_QOS)
+        # a node with flutter_monitor:=true publishes a result per plateau: shown as it comes (stderr)
+        self.monitor_lines: list[str] = []
+        self.create_subscription(DiagnosticArray, MONITOR_TOPIC, self._on_monitor, DIAGNOSTICS_QOS)
         self.diag_sim_time_s = -math.inf  # the rig's simulated time in its last diagnostics
         self.aborts: dict[float, str] = {}  # abort time (simulated s) -> reason, from the rig's diagnostics
         self.aborted_seen_s: list[float] = []  # simulated times of statuses that said the rig was aborted
@@ -248,6 +254,12 @@ class Operator(Node):
             self.aborts.setdefault(float(values["last_abort_time_s"]), values.get("abort_reason", ""))
         if values.get("state") == "aborted":
             self.aborted_seen_s.append(float(values["sim_time_s"]))
+
+    def _on_monitor(self, msg: DiagnosticArray) -> None:
+        if msg.status and msg.status[0].name == MONITOR_STATUS:
+            line = monitor_line(parse_monitor(msg))
+            self.monitor_lines.append(line)
+            print(line, file=sys.stderr, flush=True)
 
     def _on_tip(self, msg: PointStamped) -> None:
         if self._samples is not None:
