@@ -584,14 +584,15 @@ def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
         return parse_monitor(monitor_msg(k, pts[k - 1], decide(pts[:k], s), 0.1, plateau=plateau))
 
     res = FlutterTestResult(points=pts[:1], decisions=[decide(pts[:1], s)], max_airspeed_mps=6.0)
-    take_late_result(res, [result(1, 50.0), result(2, 185.0)])
+    # "point": the caller prints its line (a review's SIGTERM run printed two point lines, then "after 3 points")
+    assert take_late_result(res, [result(1, 50.0), result(2, 185.0)]) == "point"
     assert res.points[-1] == pts[1] and len(res.points) == 2
-    take_late_result(res, [result(1, 50.0), result(2, 185.0)])  # taken: not twice
+    assert take_late_result(res, [result(1, 50.0), result(2, 185.0)]) is None  # taken: not twice
     assert len(res.points) == 2
     cut = FlutterTestResult(points=pts[:1], max_airspeed_mps=6.0)  # the wind-off cut the plateau after 30 s
-    take_late_result(cut, [result(1, 50.0), result(2, 135.0)])
+    assert take_late_result(cut, [result(1, 50.0), result(2, 135.0)]) is None
     ahead = FlutterTestResult(points=pts[:1], max_airspeed_mps=7.0)  # the 7 m/s point's result never came
-    take_late_result(ahead, [result(1, 50.0), result(2, 185.0)])
+    assert take_late_result(ahead, [result(1, 50.0), result(2, 185.0)]) is None
     assert len(cut.points) == len(ahead.points) == 1
 
 

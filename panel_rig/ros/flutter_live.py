@@ -156,8 +156,12 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
             code = stop(node, STOP_WAIT_S)
         res = drive.res
         if stopped is not None:  # after the wind-off and the node's stop: this may take a decision (a bootstrap) still
-            take_late_result(res, drive.results)
+            late = take_late_result(res, drive.results)
             interrupted_result(res, settings, stopped.name)
+            if late == "point":  # its line, as every point's (a stop during its identification left it out)
+                on_point(res.points[-1], res.decisions[-1])
+            elif late == "flutter":
+                on_flutter(res.max_airspeed_mps)
         elif gone is not None:  # a failed recording or a lost node, after test points: they are reported
             interrupted_result(res, settings, LOST_NODE)
         bags = sorted(p for p in run_dir.glob("rig_*") if p.is_dir())
@@ -189,23 +193,26 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         return out
 
 
-def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> None:
+def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> str | None:
     """The node's result for the point under way that a stopped client did not take (it came while the client
     turned the wind off): ``res`` counts its flutter, or the point if its window was the whole dwell (the wind-off
     cuts the plateau, and the node identifies a cut one too when it kept the minimum dwell: not a point of the
-    test's plan)."""
+    test's plan). Returns what was taken: "point", "flutter" or None."""
     from panel_rig.ros.flutter_monitor import point_from_values
 
     u = res.max_airspeed_mps  # the point under way: its airspeed is commanded before it is measured
     if not results or u <= 0 or res.fluttered or (res.points and res.points[-1].airspeed_mps == u):
-        return
+        return None
     v = results[-1]
     if v.get("airspeed_mps") != u:
-        return
+        return None
     if v.get("fluttered") == "true":
         res.fluttered = True
-    elif v["sim_time_s"] >= v["plateau_start_s"] + v["settle_s"] + v["dwell_s"] - 1e-6:
+        return "flutter"
+    if v["sim_time_s"] >= v["plateau_start_s"] + v["settle_s"] + v["dwell_s"] - 1e-6:
         res.points.append(point_from_values(v))
+        return "point"
+    return None
 
 
 def _finite(x: Any) -> float | None:
