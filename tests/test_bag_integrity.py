@@ -205,6 +205,8 @@ def test_broken_record_length_is_skipped_to_the_next_good_chunk(tmp_path: Path) 
     assert [c.offset for c in scan.chunks if c.ok] == [c.offset for c in chunks if c is not victim]
     report = recover_bag(bag)
     assert report.messages == sum(c.messages for c in chunks if c is not victim)
+    # the loss is counted from the original's summary (the report named only the unreadable byte range)
+    assert report.unaccounted_messages == victim.messages and f"lost {victim.messages} messages" in report.line()
     assert _mcap_count(path)[0] == report.messages == sum(_rosbags_counts(bag).values())
 
 
@@ -239,7 +241,7 @@ def test_cli_subprocess_prints_no_traceback(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------ layering
 # argparsing is stdlib only (checked below), so every layer may use it; the study scripts in analysis do
-ORDER = ["argparsing", "config", "topics", "model", "analysis", "rig", "ros", "recording", "viz", "cli"]
+ORDER = ["argparsing", "processes", "config", "topics", "model", "analysis", "rig", "ros", "recording", "viz", "cli"]
 
 
 def _imports(path: Path) -> set[str]:
@@ -307,6 +309,34 @@ def test_interrupted_recover_leaves_no_partial_output(tmp_path: Path, monkeypatc
     report = recover_bag(bag)
     assert report.dropped_chunks == 1 and not report.notes
     assert sorted(p.name for p in bag.iterdir()) == sorted([*before, MCAP + ".broken"])
+
+
+def test_sigterm_during_recover_leaves_the_bag_as_it_was(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A `kill` (SIGTERM) of `panel-rig bag recover` ended it at once with status 143, leaving the partial
+    `<file>.recovering` and the lock file (a review's finding); now it leaves the bag as Ctrl-C does, and says so."""
+    import signal
+
+    import panel_rig.recording.recover as recover
+
+    bag, path = _copy(tmp_path)
+    _flip_bit(path, path.stat().st_size // 2)
+    before = {p.name: p.read_bytes() for p in bag.iterdir()}
+
+    class KilledWriter(recover.Writer):
+        def add_message(self, *args: object, **kwargs: object) -> None:
+            if getattr(self, "_n", 0) == 1000:
+                os.kill(os.getpid(), signal.SIGTERM)
+            self._n = getattr(self, "_n", 0) + 1
+            super().add_message(*args, **kwargs)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(recover, "Writer", KilledWriter)
+        code = recover.main_bag_recover(str(bag))
+    err = capsys.readouterr().err
+    assert code == 143 and "stopped by SIGTERM" in err and "is as it was" in err, err
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == before  # no .recovering, no lock file
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # the handler is given back
 
 
 def test_ctrl_c_while_the_recovered_file_is_put_in_place_is_held(tmp_path: Path,

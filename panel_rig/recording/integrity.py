@@ -95,6 +95,7 @@ class McapScan:
     data_crc_stored: int = 0  # DataEnd's data_section_crc (0: not set by the writer)
     data_crc: str = "absent"  # "absent" (0 or no DataEnd), "ok", "mismatch"
     summary_crc: str = "absent"  # "absent", "ok", "mismatch"
+    summary_message_count: int | None = None  # the summary's Statistics, when readable (what the writer wrote)
 
     @property
     def complete(self) -> bool:
@@ -511,6 +512,7 @@ def _check_summary(scan: McapScan, f: io.BufferedReader, footer_pos: int) -> Non
         scan.problems.append(Problem(footer.summary_start,
                                      f"the summary indexes {len(index)} chunks, the file has {len(scan.chunks)}"))
     stats = next((r for r in records if isinstance(r, Statistics)), None)
+    scan.summary_message_count = stats.message_count if stats is not None else None
     if stats is not None and not scan.bad_chunks and stats.message_count != scan.message_count:
         scan.problems.append(Problem(footer.summary_start, f"the summary counts {stats.message_count} messages, "
                                                            f"the data section holds {scan.message_count}"))

@@ -14,11 +14,7 @@ from __future__ import annotations
 import errno
 import json
 import os
-import signal
 import sys
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +22,7 @@ import yaml
 from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
+from panel_rig.processes import TERMINATED_STATUS, signals_deferred, sigterm_exits
 from panel_rig.recording.errors import BagInUseError, MetadataError, RecordingError
 from panel_rig.recording.integrity import McapScan, messages_in_time_order, scan_mcap
 from panel_rig.recording.lock import BagLock, lock_holder
@@ -65,6 +62,9 @@ class RecoverReport:
     dropped_chunks: int = 0
     dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
     dropped_topic_counts: dict[str, int] = field(default_factory=dict)
+    #: messages the original's summary counted that no chunk accounts for: in unreadable bytes (broken framing);
+    #: None when that summary is unreadable (a truncated file has none)
+    unaccounted_messages: int | None = None
     notes: list[str] = field(default_factory=list)  # what was cleaned up first (damaged metadata.yaml, stale output)
     metadata_written: bool = False  # a complete MCAP whose metadata.yaml was missing or unreadable
 
@@ -80,6 +80,9 @@ class RecoverReport:
                      f"({self.dropped_messages} messages)")
         if self.skipped_messages:
             text += f"; skipped {self.skipped_messages} messages of lost channels"
+        if self.unaccounted_messages:
+            text += (f"; lost {self.unaccounted_messages} messages in unreadable bytes (the original's summary "
+                     f"counted {self.unaccounted_messages + self.messages + self.skipped_messages + self.dropped_messages})")
         if self.bytes_discarded:
             text += f"; discarded {self.bytes_discarded} trailing bytes ({self.stop_reason})"
         return text + f"; original kept as {self.broken_path}"
@@ -156,25 +159,6 @@ def _free_name(path: Path) -> Path:
         if not candidate.exists():
             return candidate
     raise RecordingError(f"too many old copies next to {path}")
-
-
-@contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C (SIGINT) until the block is done, then raise it (main thread only; elsewhere a no-op)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if caught:
-            if callable(previous):
-                previous(signal.SIGINT, None)
-            elif previous != signal.SIG_IGN:
-                raise KeyboardInterrupt
 
 
 def _put_in_place(tmp: Path, mcap_path: Path, broken: Path) -> None:
@@ -293,7 +277,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         notes.append(f"{', '.join(kept)} kept from the previous {METADATA_FILE} (the recovered part of "
                      f"{mcap_path.name} does not hold {'it' if len(kept) == 1 else 'them'})")
     broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
-    with _sigint_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
+    with signals_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
         _put_in_place(tmp, mcap_path, broken)
         write_metadata(bag_dir, summary)
     report = RecoverReport(
@@ -315,6 +299,8 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
             report.dropped.append(scan.describe(p) + (f" [{topics}]" if topics else ""))
         elif p.length:
             report.dropped.append(scan.describe(p))
+    if scan.summary_message_count is not None:
+        report.unaccounted_messages = max(0, scan.summary_message_count - written - skipped - report.dropped_messages)
     return report
 
 
@@ -362,7 +348,13 @@ def main_bag_recover(path: str) -> int:
     """CLI: `panel-rig bag recover BAG`. 0 ok, 2 bad input (one stderr line), 1 write failure."""
     bag_dir = Path(path)
     try:
-        report = recover_bag(bag_dir)
+        with sigterm_exits():  # a `kill` leaves the bag as it was, as Ctrl-C does (it left the partial copy and lock)
+            report = recover_bag(bag_dir)
+    except SystemExit as exc:
+        if exc.code != TERMINATED_STATUS:
+            raise
+        print(f"panel-rig bag recover: stopped by SIGTERM; {path} is as it was", file=sys.stderr)
+        return TERMINATED_STATUS
     except RecordingError as exc:
         print(f"panel-rig bag recover: {exc}", file=sys.stderr)
         return 2
