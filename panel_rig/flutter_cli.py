@@ -391,8 +391,8 @@ def _method_cell(point: dict[str, Any]) -> str:
 def format_flutter_test(out: dict[str, Any]) -> str:
     from panel_rig.analysis.flutter_test import prediction_text
 
-    def num(x: Any, fmt: str) -> str:
-        return "-" if x is None else format(x, fmt)
+    def num(x: Any, fmt: str) -> str:  # "-" in the column's width ("7.3f": 7), so a row without a mode stays aligned
+        return format("-", ">" + fmt.partition(".")[0]) if x is None else format(x, fmt)
 
     lines = [f"{'#':>2} {'U_mps':>7} {'f_Hz':>7} {'zeta':>8} {'zeta 95% CI':>19} method" if out["test_points"]
              else "no test point identified (see stop)"]  # a header over no rows read as a lost table

@@ -79,8 +79,10 @@ def test_a_quiet_tunnel_s_test_stops_at_its_first_point_and_exits_1(tmp_path, ca
         f"panel-rig flutter-test: stopped without clearance: {out['stop_reason']}")
     from panel_rig.flutter_cli import format_flutter_test
 
-    row = format_flutter_test(out).splitlines()[1]  # the table named the method of a point it did not identify
+    head, row = format_flutter_test(out).splitlines()[:2]  # the table named the method of a point it did not identify
     assert row.split()[2:5] == ["-", "-", "-"] and row.endswith("- (ssi-cov: not identified)"), row
+    # each "-" under its column's header ("1   5.240 - -                   - -" was misaligned)
+    assert row.index("- (ssi") == head.index("method") and row[: head.index("zeta 95% CI") + 11].endswith("-"), row
 
 
 def test_tap_start_is_the_first_sample_after_the_force():
@@ -708,6 +710,12 @@ def test_the_v_g_figure_says_what_was_tested_and_how_it_ended():
     assert "stop: interrupted by SIGINT after 1 test point(s)" in title
     quiet = figure_title(FlutterTestResult(), cfg.replace(turbulence_intensity=0.0), "exact", 20.0, "live node")
     assert "no turbulence" in quiet and "0 point(s); stop: none" in quiet
+    # a long stop reason is wrapped to the figure's width (a review's plot cut one 200-character line at both edges)
+    unidentified = FlutterTestResult(points=[TestPoint(5.24, None, None, "ssi-cov")])
+    unidentified.decisions = [decide(unidentified.points, FlutterTestSettings(5.0, 1.0))]
+    long = figure_title(unidentified, cfg, "full", 200.0, "in-process")
+    assert len(long.splitlines()) >= 3 and max(len(line) for line in long.splitlines()) <= 100, long
+    assert "tunnel.turbulence.intensity" in long
 
 
 def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_path, capsys, monkeypatch):

@@ -24,6 +24,7 @@ bands come from the model: frequencies and damping are identified from the measu
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -323,8 +324,14 @@ def figure_title(res: FlutterTestResult, cfg: Any, variant: str, dwell_s: float,
     in-process) and how it ended, so a figure of a test cut short does not read as a finished one."""
     tunnel = (f"turbulence {100 * cfg.turbulence_intensity:g} % (seed {cfg.turbulence_seed})"
               if cfg.turbulence_intensity > 0 else "no turbulence")
+    ending = f"{len(res.points)} point(s); stop: {res.stop_reason() or 'none'}"
+    # a long stop reason in lines the figure's width holds (one line of 200 characters was cut off at both edges)
     return (f"flutter test ({how}): variant {variant}, {tunnel}, dwell {dwell_s:g} s\n"
-            f"{len(res.points)} point(s); stop: {res.stop_reason() or 'none'}")
+            + textwrap.fill(ending, TITLE_WIDTH_CHARS, break_on_hyphens=False))
+
+
+#: characters per line of a figure title (9 pt, the V-g figure's 8 in width)
+TITLE_WIDTH_CHARS = 100
 
 
 def fluttered_reason(airspeed_mps: float) -> str:
