@@ -19,7 +19,15 @@ from panel_rig import jsonio
 from panel_rig.analysis.run_checks import coarse_step_warning, forced_settling_warning
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import MAX_DURATION_S, ConfigError, PanelConfig, load_config
-from panel_rig.model.options import DEFAULT_AERO, DEFAULT_SCHEME, DEFAULT_VARIANT, RIG_AERO_MODELS, SCHEMES, VARIANTS
+from panel_rig.model.options import (
+    DEFAULT_AERO,
+    DEFAULT_SCHEME,
+    DEFAULT_VARIANT,
+    RIG_AERO_MODELS,
+    SCHEMES,
+    VARIANTS,
+    stepper_problem,
+)
 from panel_rig.paths import check_output_dir, make_output_dir, prepare_rrd_path, rrd_path_problem
 from panel_rig.processes import BROKEN_PIPE_STATUS, INTERRUPTED_STATUS, Aborted, StoppedRun
 
@@ -40,11 +48,19 @@ def _config(args: argparse.Namespace) -> PanelConfig:
         if Path(plot).is_dir() or str(plot).endswith(("/", os.sep)):  # `x.png/` wrote the file x.png
             raise UsageError(f"--plot: {plot} is a directory: name the .png file in it")
         check_output_dir(Path(plot).parent, "--plot")
-    cfg = load_config(args.params, args.set or ())
+    return load_config(args.params, args.set or ())
+
+
+def _march_checks(args: argparse.Namespace, cfg: PanelConfig) -> None:
+    """For a command that marches the equations in time, once its own refusals are through (a warning, then an
+    error, read as two results): its options as the stepper will take them, then the step's warning."""
+    problem = stepper_problem(getattr(args, "variant", DEFAULT_VARIANT), getattr(args, "aero", DEFAULT_AERO),
+                              getattr(args, "scheme", DEFAULT_SCHEME))
+    if problem:
+        raise UsageError(problem)
     coarse = coarse_step_warning(cfg)
     if coarse:
         _note(coarse)
-    return cfg
 
 
 MAX_RANGE_POINTS = 10_000
@@ -326,6 +342,8 @@ def cmd_lco(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     _duration(args.duration, "--duration", cfg)
+    _airspeed(args.airspeed)
+    _march_checks(args, cfg)
     if args.turbulence_intensity is not None or args.seed is not None:
         # the tunnel: the panel starts at rest and only the turbulence disturbs it (the same Rig as the node)
         from panel_rig.analysis.lco import diverged_result, lco_metrics
@@ -384,7 +402,7 @@ def lco_warnings(payload: dict[str, Any]) -> list[str]:
         when = "" if at is None else f" at t = {at:.3f} s"
         if payload.get("abort_reason"):  # the tunnel's rig stopped the run (its tip limit, the wall): its log said so
             return []
-        return [f"warning: the run diverged{when} (|w/L| over model.max_tip_w_over_L, or a non-finite state): no "
+        return [f"warning: the run diverged{when} (|w/L| over sim.max_tip_w_over_L, or a non-finite state): no "
                 f"LCO metrics; {OUTSIDE_RANGE}"]
     out = []
     peak = payload.get("peak_tip_w_over_L")
@@ -437,6 +455,7 @@ def cmd_lco_sweep(args: argparse.Namespace) -> int:
     cfg = _config(args)
     speeds = _range(args.airspeeds)
     _duration(args.duration, "--duration", cfg)
+    _march_checks(args, cfg)
     res = lco_sweep(cfg, speeds, args.duration, args.variant, args.aero, args.scheme, progress=Progress("sweep"))
     payload = {"airspeed_mps": speeds, "results": [r.as_dict() for r in res]}
     if args.plot:
@@ -476,6 +495,7 @@ def cmd_forced(args: argparse.Namespace) -> int:
     _duration(args.dwell, "--dwell", cfg, least_s=1.0)  # the amplitude is read over the last second of each dwell
     if not (np.isfinite(args.f0) and args.f0 > 0):  # 0 gave all-zero amplitudes and a "peak" at the band's start
         raise UsageError(f"--f0 must be a finite force amplitude > 0 N/m, got {args.f0}")
+    _march_checks(args, cfg)
     unsettled = forced_settling_warning(cfg, f0, f1, args.dwell)
     if unsettled:
         _note(unsettled)
@@ -658,6 +678,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     problem = rrd_path_problem(args.rerun) if args.rerun else None
     if problem:  # before any directory is made (a refused --rerun left the --bag-dir made)
         raise UsageError(f"--rerun: {problem}")
+    _march_checks(args, cfg)
     make_output_dir(Path(args.bag_dir), "--bag-dir")
     if args.rerun:
         prepare_rrd_path(args.rerun, "--rerun")

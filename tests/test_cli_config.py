@@ -472,6 +472,10 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
     (gone,) = lco_warnings({"peak_tip_w_over_L": None, "steady_after_s": None, "diverged": True,
                             "diverged_at_s": 5.3662109375})
     assert gone.startswith("warning: the run diverged at t = 5.366 s") and "no LCO metrics" in gone, gone
+    from panel_rig.config import SCHEMA  # the limit it names is a key `--set` takes (it named model.max_tip_w_over_L)
+
+    named = gone.split("|w/L| over ", 1)[1].split(",", 1)[0]
+    assert named in SCHEMA, named
     # the tunnel's rig stopped it: the rig's own log line says when and why
     assert lco_warnings({"diverged": True, "diverged_at_s": 9.78, "abort_reason": "tip |w/L| = 1.0024 exceeds"}) == []
 
@@ -520,7 +524,9 @@ def test_lco_sweep_warns_of_tips_past_the_panel_s_length_and_prints_no_nan():
 
 def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
     """`--set sim.dt_s=0.01` (1.4 steps a period of the 73 Hz mode) moved the stiffness LCO from 23.15 to 20.43 Hz
-    without a word; the default step (28 steps) and 1 ms (13.7) get no warning."""
+    without a word; the default step (28 steps) and 1 ms (13.7) get no warning. The default step was never
+    checked: a 5 cm panel (its 2134 Hz third mode in 1.0 step, the LCO's RMS off by 50 %) and 12 modes (1548 Hz, 1.3
+    steps) ran without a word. Only a command that marches warns (`modes` has no step)."""
     from panel_rig.analysis.run_checks import coarse_step_warning
 
     cfg = load_config(None, ())
@@ -528,8 +534,23 @@ def test_a_step_too_coarse_for_the_highest_mode_is_warned_of():
     assert coarse_step_warning(cfg.replace(dt_s=0.01)) == (
         "warning: sim.dt_s = 0.01 s resolves the highest mode (73.2 Hz) with 1.4 steps a period (fewer than 10): "
         "the results are not converged in the step")
-    out = run("modes", "--set", "sim.dt_s=0.01")
+    short = coarse_step_warning(load_config(None, ("panel.length_m=0.05",)))
+    many = coarse_step_warning(load_config(None, ("structure.modes=12",)))
+    assert short is not None and "(2133.6 Hz) with 1.0 steps" in short and many is not None and "with 1.3 steps" in many
+    out = run("lco", "--airspeed", "5", "--duration", "0.01", "--set", "sim.dt_s=0.01")
     assert out.returncode == 0 and out.stderr.startswith("warning: sim.dt_s = 0.01 s"), out.stderr
+    assert "warning" not in run("modes", "--set", "sim.dt_s=0.01").stderr
+
+
+def test_a_refused_march_says_one_line_and_no_warning_before_it():
+    """`lco --set sim.dt_s=0.005 --variant exact --scheme paper` printed the step's warning, then the error: two
+    lines where the README promises one (and `forced ... --dwell 1` likewise with its dwell warning)."""
+    out = run("lco", "--airspeed", "5", "--duration", "1", "--set", "sim.dt_s=0.005", "--variant", "exact",
+              "--scheme", "paper")
+    assert out.returncode == 2 and out.stderr.strip().splitlines() == [
+        "panel-rig: error: the exact structure runs the implicit (midpoint) scheme only"], out.stderr
+    out = run("forced", "--band", "4", "4", "--variant", "exact", "--scheme", "paper", "--dwell", "1")
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
 
 
 def test_the_run_checks_build_the_structure_once(monkeypatch):

@@ -31,3 +31,17 @@ DEFAULT_AERO = "rom"
 #: time schemes of the nonlinear mass (see kernel.py): consistent midpoint, the paper's Eq. 24, its literal form
 SCHEMES: tuple[str, ...] = ("implicit", "paper", "paper_literal")
 DEFAULT_SCHEME = "implicit"
+
+
+def stepper_problem(variant: str, aero: str, scheme: str) -> str | None:
+    """Why a march cannot run these options (unknown names, or the exact structure with a scheme other than the
+    implicit midpoint); None when it can. The stepper refuses with it, and a command checks it before it warns."""
+    if variant not in VARIANTS:
+        return f"variant must be one of {tuple(VARIANTS)}, got {variant!r}"
+    if aero not in AERO_MODELS:
+        return f"aero must be one of {AERO_MODELS}, got {aero!r}"
+    if scheme not in SCHEMES:
+        return f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}"
+    if variant == EXACT_VARIANT and scheme != "implicit":
+        return "the exact structure runs the implicit (midpoint) scheme only"
+    return None

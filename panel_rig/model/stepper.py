@@ -18,7 +18,7 @@ from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.elastica import exact_kinematics, shape_sampler
 from panel_rig.model.elastica import shape as exact_shape
 from panel_rig.model.kernel_exact import exact_tip
-from panel_rig.model.options import AERO_MODELS, EXACT_VARIANT, SCHEMES, VARIANTS
+from panel_rig.model.options import EXACT_VARIANT, SCHEMES, VARIANTS, stepper_problem
 from panel_rig.model.structure import mode_shapes
 
 MASS_MODES = dict(zip(SCHEMES, (kernel.MASS_MIDPOINT, kernel.MASS_AT_START, kernel.MASS_LITERAL)))
@@ -111,14 +111,9 @@ class Stepper:
 
     def __init__(self, cfg: PanelConfig, variant: str = "full", aero: str = "rom", scheme: str = "implicit",
                  model: AeroelasticModel | None = None, dt_s: float | None = None):
-        if variant not in VARIANTS:
-            raise ValueError(f"variant must be one of {tuple(VARIANTS)}, got {variant!r}")
-        if aero not in AERO_MODELS:
-            raise ValueError(f"aero must be one of {AERO_MODELS}, got {aero!r}")
-        if scheme not in SCHEMES:
-            raise ValueError(f"scheme must be one of {tuple(SCHEMES)}, got {scheme!r}")
-        if variant == EXACT_VARIANT and scheme != "implicit":
-            raise ValueError("the exact structure runs the implicit (midpoint) scheme only")
+        problem = stepper_problem(variant, aero, scheme)
+        if problem:
+            raise ValueError(problem)
         self.cfg = cfg
         self.model = model if model is not None else AeroelasticModel(cfg)
         self.variant, self.aero, self.scheme = variant, aero, scheme
