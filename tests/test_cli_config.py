@@ -89,9 +89,14 @@ def test_flutter_plot(tmp_path):
     (["run", "--ros-args", "-p", "model.variant:=bogus"], "invalid node parameters: model.variant: must be one of"),
     # a recording that cannot be opened: the INFO line came first here too (it is said once the sinks are up)
     (["run", "--ros-args", "-p", "record:=true", "-p", "bag_dir:=/proc/no_such_dir"], "/proc/no_such_dir"),
-    # the start-up warnings (an unknown parameter, a tip limit at the model's bound) came before it as well
-    (["run", "--ros-args", "-p", "record:=true", "-p", "bag_dir:=/proc/no_such_dir", "-p", "no_such_param:=1",
+    # the start-up warnings (a tip limit at the model's bound) came before it as well
+    (["run", "--ros-args", "-p", "record:=true", "-p", "bag_dir:=/proc/no_such_dir",
       "-p", "safety.max_tip_w_over_L:=2.0"], "/proc/no_such_dir"),
+    # a misspelt parameter ran the defaults behind a warning (the node) or without a word (the controller)
+    (["run", "--ros-args", "-p", "model.variantt:=exact"], "'model.variantt' (did you mean 'model.variant'?)"),
+    (["control", "--ros-args", "-p", "gian_nspm2:=1.0"], "'gian_nspm2' (did you mean 'gain_nspm2'?)"),
+    # rclpy's exception class name led the line
+    (["control", "--ros-args", "-p", "design_delay_ms:=abc"], "control: design_delay_ms: Trying to set parameter"),
     (["control", "--ros-args", "-p"], "bad --ros-args"),
     (["operate", "--profile", "config/staircase.yaml", "--namespace", "bad name"], "--namespace 'bad name'"),
     (["operate", "--profile", "config/staircase.yaml", "--timeout", "nan"], "--timeout"),  # never timed out

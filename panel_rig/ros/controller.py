@@ -28,6 +28,7 @@ from collections.abc import Sequence
 import rclpy
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -87,7 +88,13 @@ class Controller(Node):
             if name in overrides:
                 overrides[name] = as_declared(self._defaults, overrides[name])
         for name, (default, _) in self._defaults.items():
-            self.declare_parameter(name, default)
+            try:
+                self.declare_parameter(name, default)
+            except InvalidParameterTypeException as exc:  # `-p design_delay_ms:=abc`: the parameter and why, not
+                raise ValueError(f"{name}: {str(exc).removesuffix(f': {name}')}") from None  # rclpy's class name
+        problem = undeclared_problem(sorted(overrides), self.list_parameters([], 0).names)
+        if problem:  # a misspelt -p (gian_nspm2:=1) was ignored without a word and the gain designed
+            raise ValueError(f"invalid parameters: {problem}")
         self.add_pre_set_parameters_callback(lambda params: [as_declared(self._defaults, p) for p in params])
         for name in (*LIVE, "design_delay_ms", "actuator_bandwidth_hz"):
             problem = parameter_problem(name, self.get_parameter(name).value, at_start=True)

@@ -209,9 +209,11 @@ class RigNode(Node):
                 problems.append(f"{name}: {str(exc).removesuffix(f': {name}')}")  # rclpy ends it with the name
         if problems:
             raise StartupError("invalid parameters: " + "; ".join(problems))
-        unknown = sorted(set(overrides) - set(self._table) - {"use_sim_time"})
-        if unknown:
-            self._startup_warnings.append(f"ignoring unknown parameters: {', '.join(unknown)}")
+        # a misspelt -p (model.variantt:=exact) ran the default variant behind a warning: refused, named, the
+        # nearest name offered (rclpy's own parameters, declared at its start, count as the node's)
+        problem = undeclared_problem(sorted(overrides), self.list_parameters([], 0).names)
+        if problem:
+            raise StartupError(f"invalid parameters: {problem}")
         node_values = {n: self.get_parameter(n).value for n in NODE_PARAMS}
         problems = check_node_params(node_values)
         if problems:
