@@ -113,7 +113,7 @@ def cmd_modes(args: argparse.Namespace) -> int:
 
 
 def cmd_flutter(args: argparse.Namespace) -> int:
-    from panel_rig.analysis.flutter import eigenvalues, find_flutter
+    from panel_rig.analysis.flutter import UnstableAtScanStart, eigenvalues, find_flutter
     from panel_rig.model.aeroelastic import AeroelasticModel
     from panel_rig.model.linearisation import linear_mass_matrix_kg
     from panel_rig.model.structure import build_structure
@@ -133,10 +133,14 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     # over the whole airspeed range every command takes (it stopped at 60 m/s: a 1.2 mm panel that flutters near
     # 60-70 m/s was "no flutter"); the same 1 m/s scan, so a flutter speed below 60 m/s is the same number
     search_max_mps = MAX_AIRSPEED_MPS
-    fp = find_flutter(model, **kw, u_max=search_max_mps, n_scan=int(round(search_max_mps)))
+    unstable = None  # a result, not a bad input (a study reports such a case as "unstable at 1 m/s")
+    try:
+        fp = find_flutter(model, **kw, u_max=search_max_mps, n_scan=int(round(search_max_mps)))
+    except UnstableAtScanStart as exc:
+        fp, unstable = None, str(exc)
     if fp is None:
         payload = {"flutter_speed_mps": None, "flutter_frequency_hz": None, "dominant_mode": None,
-                   "mode_shares": None, "searched_up_to_mps": search_max_mps}
+                   "mode_shares": None, "searched_up_to_mps": search_max_mps, "unstable_at_scan_start": unstable}
     else:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}
@@ -162,13 +166,18 @@ def cmd_flutter(args: argparse.Namespace) -> int:
                            (f"ROM Ra={rom_modes}", dict(aero="rom", rom_modes=rom_modes))):
             curves[label] = (speeds, [eigenvalues(model, u, formulation=args.formulation, **akw).s
                                       for u in speeds])
-            p = fp if akw["aero"] == args.aero else find_flutter(model, formulation=args.formulation, **akw)
+            try:
+                p = fp if akw["aero"] == args.aero else find_flutter(model, formulation=args.formulation, **akw)
+            except UnstableAtScanStart:
+                p = None
             if p is not None:
                 marks[label] = (p.speed_mps, p.frequency_hz)
         payload["plot"] = str(plot_flutter_roots(curves, args.plot, marks))
 
     def table() -> str:
-        if fp is None:
+        if unstable is not None:
+            text = f"no flutter speed: {unstable}, below the scan's lowest airspeed"
+        elif fp is None:
             text = f"no flutter found up to {search_max_mps:g} m/s (the incompressible lattice's limit)"
         else:
             text = (f"variant            {args.variant} ({LINEAR_NOTE})\n"

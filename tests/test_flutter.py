@@ -77,3 +77,10 @@ def test_the_flutter_command_searches_the_whole_airspeed_range(capsys):
     assert out["flutter_speed_mps"] is None and out["searched_up_to_mps"] == 100.0
     assert main(["flutter", "--set", "panel.thickness_m=0.003"]) == 0
     assert capsys.readouterr().out.startswith("no flutter found up to 100 m/s")
+    # a model unstable already at the scan's start is a result, not a bad input (it was "error", exit 2, no JSON; a
+    # study reports the same case as "unstable at 1 m/s")
+    assert main(["flutter", "--set", "material.youngs_modulus_pa=1e3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["flutter_speed_mps"] is None and out["unstable_at_scan_start"] == "unstable already at 1.0 m/s"
+    assert main(["flutter", "--set", "panel.thickness_m=0.003", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["unstable_at_scan_start"] is None
