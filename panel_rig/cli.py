@@ -66,6 +66,12 @@ def _march_checks(args: argparse.Namespace, cfg: PanelConfig) -> None:
 MAX_RANGE_POINTS = 10_000
 
 
+def _some(values: Sequence[Any], shown: int = 5) -> str:
+    """A list in an error line: its first ``shown`` values and how many more."""
+    more = f" and {len(values) - shown} more" if len(values) > shown else ""
+    return ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values[:shown]) + more
+
+
 def _duration(value: float, option: str, cfg: PanelConfig, least_s: float = 0.0) -> float:
     """Simulated seconds: at least one physics step (and ``least_s``), at most MAX_DURATION_S."""
     low = max(cfg.dt_s, least_s)
@@ -531,9 +537,12 @@ def cmd_gust(args: argparse.Namespace) -> int:
     from panel_rig.analysis.gust import GUST_WAKE_CHORDS, sears_comparison
 
     cfg = _config(args)
-    ks = args.k
-    if not ks or any(not (np.isfinite(k) and 0 < k <= 10) for k in ks):
-        raise UsageError(f"--k needs reduced frequencies in (0, 10], got {ks}")
+    ks = args.k or []
+    bad = [k for k in ks if not (np.isfinite(k) and 0 < k <= 10)]
+    if not ks or bad:  # the values refused, not the whole list (1000 values made a 7 kB line)
+        raise UsageError(f"--k needs reduced frequencies in (0, 10], got {_some(bad) if bad else 'none'}")
+    if len(ks) > MAX_RANGE_POINTS:
+        raise UsageError(f"--k takes at most {MAX_RANGE_POINTS} values, got {len(ks)}")
     wake = GUST_WAKE_CHORDS if args.wake_chords is None else args.wake_chords
     if not (np.isfinite(wake) and 1 <= wake <= 500):
         raise UsageError(f"--wake-chords must be in [1, 500], got {wake}")
