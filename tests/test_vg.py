@@ -107,6 +107,19 @@ def test_cli_vg_json_and_plot(tmp_path, vg):
     assert png.stat().st_size > 10_000
 
 
+def test_a_mode_the_panel_cuts_is_named_with_where_it_leaves(model):
+    """`flutter --vg 0:50:5 --plot`: the panel spans the lightly damped modes, and the first mode (zeta 0.04 at rest,
+    1.0 later) was drawn cut off after U = 0 with no word; a mode entirely off the panel was named already."""
+    from panel_rig.analysis.vg import damping_limits, mode_label
+
+    d = vg_diagram(model, np.arange(0.0, 50.01, 5.0))
+    limits, _ = damping_limits(d.damping_ratio)
+    first = mode_label(1, d.airspeed_mps, d.damping_ratio[:, 0], limits)
+    assert first.startswith("mode 1: zeta 0.0") and first.endswith("off the panel from 5 m/s"), first
+    assert mode_label(2, d.airspeed_mps, np.full(11, 0.5), limits).endswith("above the panel")
+    assert mode_label(3, d.airspeed_mps, np.zeros(11), limits) == "mode 3"
+
+
 def test_cli_vg_bad_range():
     out = _cli("flutter", "--vg", "10:8:1")
     assert out.returncode == 2 and "--vg" in out.stderr and len(out.stderr.strip().splitlines()) == 1

@@ -459,6 +459,8 @@ class FlutterWatch:
         keep = t > t[-1] - FLUTTER_WINDOW_S
         self._t, self._sq = t[keep], sq[keep]
         return self.fluttered
+
+
 #: a replayed window is a test point only if the measured airspeed's median is within this of the command:
 #: 0.05 m/s (the plateau tolerance of the bag analysis) + 1 % (the tunnel's turbulence u' is 0.1 % r.m.s.)
 AIRSPEED_MATCH_MPS, AIRSPEED_MATCH_REL = 0.05, 0.01

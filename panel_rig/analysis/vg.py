@@ -208,6 +208,20 @@ def damping_limits(damping_ratio: np.ndarray) -> tuple[tuple[float, float], list
     return (lo, hi), outside
 
 
+def mode_label(mode: int, airspeeds_mps: np.ndarray, damping_ratio: np.ndarray, limits: tuple[float, float]) -> str:
+    """A V-g panel's legend entry for a mode: with its damping range when the panel's ``limits`` cut it, and where it
+    leaves the panel if it is partly inside (a first mode leaving it at 5 m/s was drawn cut off without a word)."""
+    lo, hi = limits
+    z = np.asarray(damping_ratio, float)
+    off = (z < lo) | (z > hi)
+    if not np.any(off):
+        return f"mode {mode}"
+    span = f"mode {mode}: zeta {np.nanmin(z):.2f}..{np.nanmax(z):.2f}"
+    if np.all(off):
+        return f"{span}, {'above' if np.nanmin(z) > hi else 'below'} the panel"
+    return f"{span}, off the panel from {airspeeds_mps[np.argmax(off)]:g} m/s"
+
+
 def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: str = ""):
     """V-g (damping ratio) and V-f (frequency) of the tracked structural modes, one line per mode; PNG. The damping
     axis is linear and spans the lightly damped modes (the flutter mode's slope is what a reader takes from it); a
@@ -216,13 +230,10 @@ def plot_vg(vg: VGDiagram, path, flutter_speed_mps: float | None = None, title: 
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
     u = vg.airspeed_mps
-    (lo, hi), outside = damping_limits(vg.damping_ratio)
+    (lo, hi), _ = damping_limits(vg.damping_ratio)
     for i in range(vg.poles.shape[1]):
         z = vg.damping_ratio[:, i]
-        where = "above" if np.nanmin(z) > hi else "below"
-        label = f"mode {i + 1}" + (f": zeta {np.nanmin(z):.2f}..{np.nanmax(z):.2f}, {where} the panel"
-                                   if i in outside else "")
-        ax1.plot(u, z, "o-", ms=3, label=label)
+        ax1.plot(u, z, "o-", ms=3, label=mode_label(i + 1, u, z, (lo, hi)))
         ax2.plot(u, vg.frequency_hz[:, i], "o-", ms=3, label=f"mode {i + 1}")
     for ax in (ax1, ax2):
         if flutter_speed_mps is not None:
