@@ -635,6 +635,12 @@ def test_a_panel_at_rest_under_the_sensor_s_noise_is_quiet() -> None:
     moving = noise + 1e-4 * np.sin(2 * np.pi * 4.0 * t)  # the random response's size at 8 m/s
     (wind,) = analyze_series(t, moving, np.full(t.size, 8.0), {}, crit)["plateaus"]
     assert wind["status"] != "quiet" and wind["dominant_frequency_hz"] == pytest.approx(4.0, abs=0.2)
+    # a noisy sensor (2 mm, RMS 0.0073 L, above the LCO rule's 0.005) with the wind on: quiet, not an "lco" whose
+    # airspeed became the flutter onset (a review's flutter-test bag at 5.24 m/s)
+    loud = dataclasses.replace(Criteria(), quiet_rms=quiet_rms_of({"sensor.tip_noise_m": 2e-3}, length_m, 1e-7))
+    din = 2e-3 / length_m * rng.standard_normal(t.size)
+    result = analyze_series(t, din, np.full(t.size, 5.24), {}, loud)
+    assert result["plateaus"][0]["status"] == "quiet" and result["onset"]["first_lco_mps"] is None, result["plateaus"]
 
 
 def test_a_free_decay_with_the_wind_off_is_no_lco() -> None:

@@ -32,7 +32,8 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   ``min_growth_r2``): the tunnel's turbulence-driven random response wanders by more than that rate over a few
   seconds and was called growing when either rate was (the demo's 8 m/s plateau, which put the onset bracket
   below it); else ``quiet`` if the envelope never rose above ``quiet_rms`` (`panel-rig analyze`: twice the run's
-  tip-sensor noise; a quiet plateau has no frequency); else ``decaying`` if the
+  tip-sensor noise; a quiet plateau has no frequency; this is checked before every other rule: a plateau of 2 mm
+  sensor noise, RMS 0.0073 L, was an ``lco``); else ``decaying`` if the
   free-response rate < ``-max_steady_rate_per_s`` and the decay was measured: a free response after a shaker
   tap, or without a tap an envelope falling along a line (R^2 >= ``min_decay_r2``: the random response's
   envelope reached R^2 0.94 in 200 five-second samples); else ``stationary`` (the turbulence's random
@@ -242,6 +243,8 @@ def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sus
     lco nor growing (the free decay of a panel the wind had left at 0.3-0.8 L after an abort, -0.1 1/s, was "lco" by
     the irregular rule, whose 5 s window cannot tell so slow a decay from a sustained cycle)."""
     lim = crit.max_steady_rate_per_s
+    if peak_env <= crit.quiet_rms:  # first: a plateau within the sensor's noise is no cycle (2 mm of noise, RMS
+        return "quiet"  # 0.0073 L, was an "lco" by the RMS rule, and its airspeed the flutter onset)
     if wind_off:
         pass
     elif rms_late >= crit.lco_min_rms and abs(rate_late) <= lim:
@@ -250,8 +253,6 @@ def _status(rms_late: float, peak_env: float, rate: float, rate_late: float, sus
         return "lco"
     elif rate > lim and rate_late > lim and peak_env > crit.quiet_rms and r2 >= crit.min_growth_r2:
         return "growing"
-    if peak_env <= crit.quiet_rms:
-        return "quiet"
     if rate < -lim and (tapped or r2 >= crit.min_decay_r2):
         return "decaying"
     return "stationary"
