@@ -204,6 +204,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
         RigMeasure,
         max_test_airspeed_mps,
         node_equivalent_rig,
+        noise_problem,
         pretest_plan,
         start_problem,
         start_warnings,
@@ -214,7 +215,8 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
 
     t0 = time.monotonic()
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
-    problem = start_problem(settings, max_test_airspeed_mps(uf))
+    problem = start_problem(settings, max_test_airspeed_mps(uf)) or noise_problem(cfg.sensor_tip_noise_m,
+                                                                                   cfg.panel_length_m)
     if problem is not None:  # before the bag is made: nothing half-recorded is left behind
         raise ValueError(problem)
     for warning in start_warnings(cfg, start_mps, uf, margin) if progress is not None else ():

@@ -487,6 +487,18 @@ def test_the_flutter_watch_is_an_rms_not_one_noisy_sample_and_does_not_depend_on
     assert any(one_by_one in b for b in blocks_idx if b[-1] == blocks)  # caught in the block holding that sample
 
 
+def test_a_sensor_whose_noise_reads_as_flutter_is_refused(tmp_path, capsys):
+    """With 4 mm of tip noise (over the flutter monitor's level) the test stopped 0.4 s after its first command:
+    "fluttered at 5.24 m/s", the tunnel still at ~2 m/s. Now: status 2, one line, before anything is recorded."""
+    from panel_rig.cli import main
+
+    code = main(["flutter-test", "--in-process", "--set", "sensor.tip_noise_m=0.004", "--bag-dir", str(tmp_path / "b"),
+                 "--plot", str(tmp_path / "vg.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.splitlines()) == 1 and "reads as flutter" in err and "quieter" in err, err
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
+
+
 def test_noisy_sensor_is_no_flutter_and_is_warned_of(tmp_path, capsys):
     """`flutter-test --in-process --dwell 20 --max-points 2 --set sensor.tip_noise_m=0.002` printed "point 1:
     5.240 m/s: fluttered at 5.240 m/s" (exit 1) from the noise's peaks; the true tip was ~1e-4 L. The noise (400

@@ -197,15 +197,36 @@ def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str 
             f"speed ({1.0 - margin:g} x {uf_mps:.3f} = {edge:.3f} m/s): the first point may flutter")
 
 
+#: the tip sensor's noise (fraction of the flutter monitor's RMS level) from which noise alone reads as flutter:
+#: 200 s dwells of white noise read so 1 in 10 at 0.79 and all at 0.84
+NOISE_AS_FLUTTER = 0.8
+
+
+def _flutter_level_m(panel_length_m: float) -> float:
+    """The flutter monitor's level as an RMS (m): a sine of FLUTTER_TIP_FRACTION L (:class:`FlutterWatch`)."""
+    return FLUTTER_TIP_FRACTION * panel_length_m / np.sqrt(2.0)
+
+
+def noise_problem(tip_noise_m: float, panel_length_m: float) -> str | None:
+    """Why a flutter test cannot run with this tip sensor: its noise alone reads as flutter (a test with 4 mm of
+    noise stopped 0.4 s after its first command, "fluttered at 5.24 m/s", the tunnel still at ~2 m/s)."""
+    level_m = _flutter_level_m(panel_length_m)
+    if tip_noise_m < NOISE_AS_FLUTTER * level_m:
+        return None
+    return (f"sensor.tip_noise_m {tip_noise_m:g} m: noise from about {NOISE_AS_FLUTTER * level_m * 1e3:.1f} mm reads "
+            f"as flutter (the flutter monitor's level, an RMS of {level_m * 1e3:.2f} mm over {FLUTTER_WINDOW_S:g} s): "
+            "a flutter test needs a quieter tip sensor")
+
+
 def noise_warning(tip_noise_m: float, panel_length_m: float) -> str | None:
-    """A warning when the tip sensor's noise is over half the flutter monitor's level (:class:`FlutterWatch`): noise
-    alone reads as flutter from about 0.8 of it (200 s dwells of white noise: 1 in 10 at 0.79, all at 0.84)."""
-    level_m = FLUTTER_TIP_FRACTION * panel_length_m / np.sqrt(2.0)
+    """A warning when the tip sensor's noise is over half the flutter monitor's level (:class:`FlutterWatch`), short
+    of :func:`noise_problem`'s."""
+    level_m = _flutter_level_m(panel_length_m)
     if tip_noise_m <= 0.5 * level_m:
         return None
     return (f"warning: sensor.tip_noise_m {tip_noise_m:g} m is over half the flutter monitor's level (an RMS of "
             f"{level_m * 1e3:.2f} mm over {FLUTTER_WINDOW_S:g} s, a sine of {FLUTTER_TIP_FRACTION:g} L); noise from "
-            f"about {0.8 * level_m * 1e3:.1f} mm reads as flutter")
+            f"about {NOISE_AS_FLUTTER * level_m * 1e3:.1f} mm reads as flutter")
 
 
 def start_warnings(cfg: PanelConfig, start_mps: float | None, uf_mps: float, margin: float) -> list[str]:

@@ -28,7 +28,13 @@ from panel_rig.processes import (
     spawn,
     stop,
 )
-from panel_rig.rig.flutter_run import max_test_airspeed_mps, pretest_plan, start_problem, start_warnings
+from panel_rig.rig.flutter_run import (
+    max_test_airspeed_mps,
+    noise_problem,
+    pretest_plan,
+    start_problem,
+    start_warnings,
+)
 
 if TYPE_CHECKING:
     from panel_rig.analysis.flutter_test import FlutterTestResult
@@ -87,7 +93,8 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
     # the pre-test analysis (this process) gives the plan: U_f, the start and the step; a start the node would refuse
     # ends here, before a run directory is made
     st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
-    problem = start_problem(settings, max_test_airspeed_mps(uf))
+    problem = start_problem(settings, max_test_airspeed_mps(uf)) or noise_problem(cfg.sensor_tip_noise_m,
+                                                                                   cfg.panel_length_m)
     if problem is not None:
         raise ValueError(problem)
     did = private_domain_id() if domain_id is None else int(domain_id)
