@@ -182,7 +182,8 @@ def cmd_flutter(args: argparse.Namespace) -> int:
 
     def table() -> str:
         if unstable is not None:
-            text = f"no flutter speed: {unstable}, below the scan's lowest airspeed"
+            text = (f"no flutter speed: {unstable}, the scan's lowest airspeed (the model turns unstable at or "
+                    "below it)")
         elif fp is None:
             text = f"no flutter found up to {search_max_mps:g} m/s (the incompressible lattice's limit)"
         else:

@@ -271,6 +271,8 @@ def test_controller_follows_a_restarted_rig_and_takes_live_parameters(ros_env: d
         typo = node.set_parameters_atomically([Parameter("gain_nspm", value=1.0)])
         assert not typo.successful and "'gain_nspm'" in typo.reason and "'gain_nspm2'" in typo.reason, typo.reason
         assert node.law.gain_nspm2 == 2.0
+        clock = node.set_parameters_atomically([Parameter("use_sim_time", value=True)])  # rclpy's: not a design input
+        assert not clock.successful and "use_sim_time is read at start" in clock.reason, clock.reason
         other = Controller(context=ctx, parameter_overrides=[Parameter("gain_nspm2", value=1),
                                                              Parameter("max_force_npm", value=3)])
         assert (other.law.gain_nspm2, other.max_force) == (1.0, 3.0)

@@ -48,6 +48,7 @@ MAX_GAP_S = 0.05  # a longer gap between readings restarts the filter (no kick f
 RESTART_BACKSTEP_S = 1.0
 #: the parameters a running controller takes (the others are design inputs, read at start)
 LIVE = ("gain_nspm2", "derivative_hz", "max_force_npm", "enabled")
+DESIGN_INPUTS = ("design_delay_ms", "actuator_bandwidth_hz")
 REPORT_S = 5.0  # wall seconds between the log lines of the counts
 
 
@@ -62,7 +63,8 @@ def parameter_problem(name: str, value: object, at_start: bool) -> str | None:
     if name == "enabled":
         return None if isinstance(value, bool) else f"enabled must be true or false, got {value!r}"
     if name not in LIVE and not at_start:
-        return f"{name} is a design input, used at start only: restart the controller to change it"
+        what = "a design input" if name in DESIGN_INPUTS else "read at start"  # (use_sim_time: rclpy's own)
+        return f"{name} is {what}, used at start only: restart the controller to change it"
     if name == "gain_nspm2" and at_start and value == 0.0:
         return None
     if name == "design_delay_ms":

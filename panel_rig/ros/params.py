@@ -194,6 +194,11 @@ def publish_rate_problem(publish_rate_hz: float, physics_dt_s: float) -> str | N
     return None
 
 
+#: how alike (difflib's ratio) a declared name must be to be offered for an unknown one: a typo scores 0.9 or more
+#: (gian_nspm2 / gain_nspm2 0.90, model.variantt 0.96), an unrelated name less (shape_rate_hz / derivative_hz 0.62)
+NEAR_NAME_CUTOFF = 0.8
+
+
 def undeclared_problem(names: Sequence[str], declared: Sequence[str]) -> str | None:
     """The reason a set of parameters is refused when a name is not one of the node's ``declared`` ones, naming it
     and the nearest declared name (rclpy's own reason listed no name: "undeclared parameter(s): []")."""
@@ -203,9 +208,10 @@ def undeclared_problem(names: Sequence[str], declared: Sequence[str]) -> str | N
         return None
     parts = []
     for name in unknown:
-        near = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+        near = difflib.get_close_matches(name, sorted(known), n=1, cutoff=NEAR_NAME_CUTOFF)
         parts.append(f"{name!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
-    return (f"not a parameter of this node: {', '.join(parts)}; `ros2 param list` lists its parameters")
+    return (f"not a parameter of this node: {', '.join(parts)} (the README lists its parameters; so does "
+            "`ros2 param list` with a ROS 2 install)")
 
 
 def as_declared(table: Mapping[str, tuple[Any, ParameterDescriptor]], prm: Parameter) -> Parameter:
