@@ -46,7 +46,7 @@ MAX_GAP_S = 0.05  # a longer gap between readings restarts the filter (no kick f
 # a reading stamped this much before the last one is not late (best-effort readings are milliseconds late) but from
 # a rig whose clock started again (a restarted fast node: its time starts at 0): the controller follows it
 RESTART_BACKSTEP_S = 1.0
-#: the parameters a running controller takes (the others are design inputs, read at start)
+#: the parameters a running controller takes; the design inputs are read at start only
 LIVE = ("gain_nspm2", "derivative_hz", "max_force_npm", "enabled")
 DESIGN_INPUTS = ("design_delay_ms", "actuator_bandwidth_hz")
 REPORT_S = 5.0  # wall seconds between the log lines of the counts
@@ -98,7 +98,7 @@ class Controller(Node):
         if problem:  # a misspelt -p (gian_nspm2:=1) was ignored without a word and the gain designed
             raise ValueError(f"invalid parameters: {problem}")
         self.add_pre_set_parameters_callback(lambda params: [as_declared(self._defaults, p) for p in params])
-        for name in (*LIVE, "design_delay_ms", "actuator_bandwidth_hz"):
+        for name in (*LIVE, *DESIGN_INPUTS):
             problem = parameter_problem(name, self.get_parameter(name).value, at_start=True)
             if problem:
                 raise ValueError(problem)
