@@ -172,9 +172,9 @@ def flutter_line(index: int, airspeed_mps: float) -> str:
 def point_line(index: int, point: Any, decision: Any) -> str:
     """One line per test point while a test runs: the identified flutter mode (95 % interval) and what comes
     next, so a test stopped half-way has shown what it found."""
-    e = point.flutter
-    found = "flutter mode not identified" if e is None else (
-        "{:.3f} Hz, zeta {:.4f} [{:.4f}, {:.4f}]".format(e.frequency_hz, e.damping_ratio, *e.damping_ci()))
+    from panel_rig.analysis.flutter_test import flutter_mode_text
+
+    found = flutter_mode_text(point.flutter)
     nxt = "stop" if decision.stop else f"next {decision.next_airspeed_mps:.3f} m/s"
     reason = decision.reason.split(": ", 1)[-1] if decision.unidentified else decision.reason  # found says it
     return f"point {index}: {point.airspeed_mps:.3f} m/s: {found}; {nxt} ({reason})"

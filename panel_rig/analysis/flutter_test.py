@@ -429,6 +429,19 @@ FLUTTER_TIP_FRACTION = 0.02
 FLUTTER_WINDOW_S = 0.25  # six periods of the flutter mode (~23 Hz); ~128 samples at the node's 512 Hz
 
 
+def flutter_level_m(panel_length_m: float) -> float:
+    """The flutter criterion as an RMS (m): that of a sine of FLUTTER_TIP_FRACTION x L."""
+    return FLUTTER_TIP_FRACTION * panel_length_m / np.sqrt(2.0)
+
+
+def flutter_mode_text(e: Any) -> str:
+    """A test point's flutter-mode estimate (ModalEstimate or None) as a line shows it: frequency, damping and its
+    95 % interval."""
+    if e is None:
+        return "flutter mode not identified"
+    return "{:.3f} Hz, zeta {:.4f} [{:.4f}, {:.4f}]".format(e.frequency_hz, e.damping_ratio, *e.damping_ci())
+
+
 class FlutterWatch:
     """Whether one plateau's measured tip fluttered (FLUTTER_TIP_FRACTION), fed in time order a block or a reading
     at a time: once the samples of a whole FLUTTER_WINDOW_S window, (t - W, t], have a mean square above
@@ -436,7 +449,7 @@ class FlutterWatch:
     sample); the live monitor, the in-process driver and the bag's replay all decide with it."""
 
     def __init__(self, panel_length_m: float) -> None:
-        self.limit_m2 = 0.5 * (FLUTTER_TIP_FRACTION * panel_length_m) ** 2
+        self.limit_m2 = flutter_level_m(panel_length_m) ** 2
         self.fluttered = False
         self._t0: float | None = None
         self._t, self._sq = np.zeros(0), np.zeros(0)  # the samples a later window still needs

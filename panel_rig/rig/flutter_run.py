@@ -22,6 +22,7 @@ from panel_rig.analysis.flutter_test import (
     TestPoint,
     bands_from_model,
     decide,
+    flutter_level_m,
     flutter_report,
     identify_point,
     kept_minimum,
@@ -202,15 +203,10 @@ def start_warning(start_mps: float | None, uf_mps: float, margin: float) -> str 
 NOISE_AS_FLUTTER = 0.8
 
 
-def _flutter_level_m(panel_length_m: float) -> float:
-    """The flutter monitor's level as an RMS (m): a sine of FLUTTER_TIP_FRACTION L (:class:`FlutterWatch`)."""
-    return FLUTTER_TIP_FRACTION * panel_length_m / np.sqrt(2.0)
-
-
 def noise_problem(tip_noise_m: float, panel_length_m: float) -> str | None:
     """Why a flutter test cannot run with this tip sensor: its noise alone reads as flutter (a test with 4 mm of
     noise stopped 0.4 s after its first command, "fluttered at 5.24 m/s", the tunnel still at ~2 m/s)."""
-    level_m = _flutter_level_m(panel_length_m)
+    level_m = flutter_level_m(panel_length_m)
     if tip_noise_m < NOISE_AS_FLUTTER * level_m:
         return None
     return (f"sensor.tip_noise_m {tip_noise_m:g} m: noise from about {NOISE_AS_FLUTTER * level_m * 1e3:.1f} mm reads "
@@ -221,7 +217,7 @@ def noise_problem(tip_noise_m: float, panel_length_m: float) -> str | None:
 def noise_warning(tip_noise_m: float, panel_length_m: float) -> str | None:
     """A warning when the tip sensor's noise is over half the flutter monitor's level (:class:`FlutterWatch`), short
     of :func:`noise_problem`'s."""
-    level_m = _flutter_level_m(panel_length_m)
+    level_m = flutter_level_m(panel_length_m)
     if tip_noise_m <= 0.5 * level_m:
         return None
     return (f"warning: sensor.tip_noise_m {tip_noise_m:g} m is over half the flutter monitor's level (an RMS of "

@@ -24,7 +24,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from panel_rig.analysis.flutter_test import NO_PREDICTION, Decision, TestPoint, prediction_text
+from panel_rig.analysis.flutter_margin import finite_or_none
+from panel_rig.analysis.flutter_test import NO_PREDICTION, Decision, TestPoint, flutter_mode_text, prediction_text
 from panel_rig.analysis.identification import ModalEstimate
 from panel_rig.ros import messages
 from panel_rig.topics import FLUTTER_MONITOR_TOPIC
@@ -114,17 +115,11 @@ def monitor_line(values: dict[str, Any]) -> str:
     head = f"flutter monitor, point {int(values.get('point_index', -1))}: {u:.3f} m/s"
     if values.get("fluttered") == "true":
         return f"{head}: fluttered (at t = {values.get('sim_time_s', math.nan):.3f} s simulated)"
-    e = _estimate_from(values, "")
-    found = "flutter mode not identified" if e is None else (
-        "{:.3f} Hz, zeta {:.4f} [{:.4f}, {:.4f}]".format(e.frequency_hz, e.damping_ratio, *e.damping_ci()))
+    found = flutter_mode_text(_estimate_from(values, ""))
     speed = values.get("predicted_flutter_speed_mps", math.nan)
-
-    def bound(x: Any) -> float | None:
-        return float(x) if isinstance(x, float) and math.isfinite(x) else None
-
     pred = (NO_PREDICTION if not isinstance(speed, float) or math.isnan(speed) else
-            prediction_text(speed, (bound(values.get("predicted_flutter_speed_ci_low_mps")),
-                                    bound(values.get("predicted_flutter_speed_ci_high_mps"))),
+            prediction_text(speed, (finite_or_none(values.get("predicted_flutter_speed_ci_low_mps")),
+                                    finite_or_none(values.get("predicted_flutter_speed_ci_high_mps"))),
                             values.get("prediction_method")))
     return f"{head}: {found}; {pred}; monitor: {values.get('decision', '')}"
 
