@@ -293,3 +293,12 @@ def test_damping_trend_in_airspeed_would_fail_by_the_hump(paper):
 
     assert extrapolated_root(u, z, 1) > 1.10 * uf
     assert damping_trend_speed(u, z) == pytest.approx(uf, rel=0.01)
+
+
+def test_finite_or_none_gives_null_for_anything_that_is_not_a_finite_number():
+    """JSON numbers of a prediction or a monitor message: a missing, non-finite or non-numeric value is null (the
+    live flutter test's summary takes them from parsed monitor messages, where a value may be a string)."""
+    from panel_rig.analysis.flutter_margin import finite_or_none
+
+    assert [finite_or_none(x) for x in (None, "nan", "10.2", np.nan, np.inf, -np.inf)] == [None] * 6
+    assert finite_or_none(np.float64(10.5)) == 10.5 and finite_or_none(3) == 3.0

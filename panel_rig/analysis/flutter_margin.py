@@ -70,8 +70,9 @@ class BoundaryPrediction:
 
 
 def finite_or_none(x: float) -> float | None:
-    """A number for JSON: None (null) when it is not finite (an open interval bound, no predicted crossing)."""
-    return float(x) if x is not None and np.isfinite(x) else None
+    """A number for JSON: None (null) when it is not a finite number (an open interval bound, no predicted crossing,
+    a value missing from a message)."""
+    return float(x) if isinstance(x, (int, float, np.number)) and np.isfinite(x) else None
 
 
 def zimmerman_weissenburger(s1: np.ndarray | complex, s2: np.ndarray | complex) -> np.ndarray:

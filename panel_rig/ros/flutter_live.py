@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import yaml
 
+from panel_rig.analysis.flutter_margin import finite_or_none
 from panel_rig.domains import private_domain_id
 from panel_rig.processes import (
     RIG_STARTUP_TIMEOUT_S,
@@ -177,13 +178,14 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         results = drive.results
         last = results[-1] if results else {}
         # the last result's time; a test stopped before any (or overdue) has the node's last reported time
-        sim = _finite(float(last.get("sim_time_s", drive.sim_time_s)))
+        sim = finite_or_none(float(last.get("sim_time_s", drive.sim_time_s)))
         out.update(model_flutter_speed_mps=uf, flutter_mode=mode, variant=variant, required_margin=margin, live=True,
                    dwell_s=settings.dwell_s, settle_s=settings.settle_s, simulated_s=sim,
-                   wall_s=time.monotonic() - t0, node_startup_wall_s=_finite(drive.startup_s),
-                   test_wall_s=_finite(drive.test_s), node_rtf=sim / drive.test_s if sim is not None and drive.test_s > 0 else None,
+                   wall_s=time.monotonic() - t0, node_startup_wall_s=finite_or_none(drive.startup_s),
+                   test_wall_s=finite_or_none(drive.test_s),
+                   node_rtf=sim / drive.test_s if sim is not None and drive.test_s > 0 else None,
                    node_exit_code=code, node_log=str(log_path), ros_domain_id=did,
-                   node_prediction_mps=_finite(last.get("predicted_flutter_speed_mps")),
+                   node_prediction_mps=finite_or_none(last.get("predicted_flutter_speed_mps")),
                    monitor_times_s=[float(r["sim_time_s"]) for r in results],
                    identify_wall_s=[float(r.get("identify_wall_s", float("nan"))) for r in results])
         if plot is not None and (res.interrupted is None or res.points):
@@ -220,10 +222,6 @@ def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> s
         res.points.append(point_from_values(v))
         return "point"
     return None
-
-
-def _finite(x: Any) -> float | None:
-    return float(x) if isinstance(x, float) and math.isfinite(x) else None
 
 
 def _drive(node: subprocess.Popen, domain_id: int, settings: Any, startup_s: float, drive: Drive,
