@@ -50,6 +50,7 @@ def test_a_point_without_a_flutter_mode_estimate_clears_nothing():
     for pts in ([blind], [_point(5.0), blind]):
         d = decide(pts, s)
         assert d.stop and d.unidentified and d.reason.startswith("flutter mode not identified at 6.000 m/s"), d
+        assert all(k in d.reason for k in ("tunnel.turbulence.intensity", "sensor.tip_noise_m")), d.reason
     assert not decide([_point(5.0)], s).unidentified
 
     def with_first(u, zeta_first):

@@ -174,7 +174,8 @@ def decide(points: Sequence[TestPoint], settings: FlutterTestSettings) -> Decisi
     last = points[-1].flutter
     if last is None:  # nothing says this airspeed is stable: no step from it
         return Decision(None, f"{NOT_IDENTIFIED} at {u:.3f} m/s: no damping to clear the next point on; excite it "
-                              "more (the tunnel's turbulence, tunnel.turbulence.intensity) or dwell longer", trend, zw, pred)
+                              "more (the tunnel's turbulence, tunnel.turbulence.intensity), dwell longer, or lower the "
+                              "sensor's noise (sensor.tip_noise_m) if it hides the response", trend, zw, pred)
     if last.damping_ratio < settings.min_damping:
         return Decision(None, f"flutter-mode damping {last.damping_ratio:.4f} < {settings.min_damping}", trend, zw,
                         pred)
