@@ -8,6 +8,7 @@ import ast
 import os
 import random
 import shutil
+import struct
 import subprocess
 import sys
 from collections import Counter
@@ -208,6 +209,24 @@ def test_broken_record_length_is_skipped_to_the_next_good_chunk(tmp_path: Path) 
     # the loss is counted from the original's summary (the report named only the unreadable byte range)
     assert report.unaccounted_messages == victim.messages and f"lost {victim.messages} messages" in report.line()
     assert _mcap_count(path)[0] == report.messages == sum(_rosbags_counts(bag).values())
+
+
+def test_a_shortened_chunk_is_uncounted_and_its_messages_lost(tmp_path: Path) -> None:
+    """A chunk record whose length was cut short: its message indexes are skipped with the broken framing, so no
+    index counts its messages; the report says so (not '0 messages') and counts them among the lost."""
+    bag, path = _copy(tmp_path)
+    chunks = scan_mcap(path).chunks
+    victim = chunks[5]
+    data = bytearray(path.read_bytes())
+    (length,) = struct.unpack_from("<Q", data, victim.offset + 1)
+    struct.pack_into("<Q", data, victim.offset + 1, length - 40)
+    path.write_bytes(data)
+    report = recover_bag(bag)
+    assert report.dropped_chunks == report.uncounted_chunks == 1 and report.dropped_messages == 0, report
+    assert report.messages == sum(c.messages for c in chunks if c is not victim)
+    line = report.line()
+    assert "(0 messages)" not in line and "no message index counts its messages" in line, line
+    assert f"lost {victim.messages} messages in uncounted chunks or unreadable bytes" in line, line
 
 
 # ------------------------------------------------------------------------------ truncated file

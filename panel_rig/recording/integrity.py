@@ -406,7 +406,7 @@ def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int,
             scan.chunks.append(info)
             last_chunk = info
             if problem:
-                info.problem, info.messages = problem, 0
+                info.problem, info.messages = problem, -1  # until a message index that follows lists them
                 scan.problems.append(Problem(pos, problem, info, len(raw)))
                 if not _frame_ok(f, end, limit):  # its length may be damaged: go to the next good chunk
                     nxt = _resync(f, pos + 1, limit)
@@ -425,7 +425,7 @@ def _scan_data(scan: McapScan, f: io.BufferedReader, limit: int,
             else:
                 if last_chunk is not None and not last_chunk.ok:
                     last_chunk.topic_counts[channel_id] = last_chunk.topic_counts.get(channel_id, 0) + n
-                    last_chunk.messages += n
+                    last_chunk.messages = max(last_chunk.messages, 0) + n
                 elif last_chunk is not None and last_chunk.topic_counts.get(channel_id, 0) != n:
                     scan.problems.append(Problem(pos, "message index disagrees with its chunk", None, len(raw)))
             scan.good_end = end

@@ -61,6 +61,7 @@ class RecoverReport:
     dropped: list[str] = field(default_factory=list)  # one line per dropped chunk / byte range / record
     dropped_chunks: int = 0
     dropped_messages: int = 0  # as listed by the message indexes of the dropped chunks
+    uncounted_chunks: int = 0  # dropped chunks no message index counted (their messages are in unaccounted_messages)
     dropped_topic_counts: dict[str, int] = field(default_factory=dict)
     #: messages the original's summary counted that no chunk accounts for: in unreadable bytes (broken framing);
     #: None when that summary is unreadable (a truncated file has none)
@@ -76,16 +77,26 @@ class RecoverReport:
         text = (f"{self.mcap_path}: recovered {self.messages} messages in {len(self.topic_counts)} "
                 f"topics from {self.chunks} chunks")
         if self.dropped_chunks:
-            text += (f"; dropped {self.dropped_chunks} corrupt chunk{'s' if self.dropped_chunks > 1 else ''} "
-                     f"({self.dropped_messages} messages)")
+            text += f"; dropped {self.dropped_chunks} corrupt chunk{'s' if self.dropped_chunks > 1 else ''} ({self._dropped_count()})"
         if self.skipped_messages:
             text += f"; skipped {self.skipped_messages} messages of lost channels"
         if self.unaccounted_messages:
-            text += (f"; lost {self.unaccounted_messages} messages in unreadable bytes (the original's summary "
+            where = "in uncounted chunks or unreadable bytes" if self.uncounted_chunks else "in unreadable bytes"
+            text += (f"; lost {self.unaccounted_messages} messages {where} (the original's summary "
                      f"counted {self.unaccounted_messages + self.messages + self.skipped_messages + self.dropped_messages})")
         if self.bytes_discarded:
             text += f"; discarded {self.bytes_discarded} trailing bytes ({self.stop_reason})"
         return text + f"; original kept as {self.broken_path}"
+
+    def _dropped_count(self) -> str:
+        """The dropped chunks' messages as their message indexes list them; a chunk none lists is 'uncounted'."""
+        if not self.uncounted_chunks:
+            return f"{self.dropped_messages} messages"
+        if self.uncounted_chunks == self.dropped_chunks:
+            return "no message index counts their messages" if self.dropped_chunks > 1 else \
+                "no message index counts its messages"
+        counted = self.dropped_chunks - self.uncounted_chunks
+        return f"{self.dropped_messages} messages in the {counted} their message indexes count, {self.uncounted_chunks} uncounted"
 
     def lines(self) -> list[str]:
         """The notes, the summary line, then one line per dropped chunk or byte range."""
@@ -292,6 +303,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
         if p.chunk is not None:
             report.dropped_chunks += 1
             report.dropped_messages += max(p.chunk.messages, 0)
+            report.uncounted_chunks += p.chunk.messages < 0
             for cid, n in p.chunk.topic_counts.items():
                 topic = scan.channel_topic(cid)
                 report.dropped_topic_counts[topic] = report.dropped_topic_counts.get(topic, 0) + n
