@@ -35,7 +35,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
 
     Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
 
-    from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
+    from panel_rig.analysis.bag_analysis import CONTROL_TIMEOUT_S, Criteria, analyze_series, write_plots
     from panel_rig.recording.series import load_series
 
     say = progress if progress is not None else (lambda line: None)
@@ -48,8 +48,11 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "flutter-test points")
     if criteria is None:  # "quiet" above the run's sensor noise: a panel at rest read 5 um of noise, "stationary"
         crit = dataclasses.replace(crit, quiet_rms=quiet_rms_of(rec.parameters, rec.panel_length_m, crit.quiet_rms))
+    timeout = rec.parameters.get("control.timeout_s")
     core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit,
-                          abort_times_s=[t for t, _ in rec.aborts])
+                          abort_times_s=[t for t, _ in rec.aborts],
+                          control_timeout_s=float(timeout) if isinstance(timeout, (int, float)) and timeout > 0
+                          else CONTROL_TIMEOUT_S)
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
@@ -233,12 +236,11 @@ def _log_analysis(logger: Any, result: dict[str, Any]) -> None:
         logger.log_text(p["t_end_s"], "analysis/plateaus",
                         f"plateau {p['index']}: {p['airspeed_mps']:.2f} m/s {p['status']} (rms w/L "
                         f"{p['rms_tip_w_over_L']:.3g}, peak {p['peak_tip_w_over_L']:.3g}, "
-                        f"{p['dominant_frequency_hz']:.2f} Hz, rate {p['growth_rate_per_s']:.3f} 1/s)",
+                        f"{p['dominant_frequency_hz']:.2f} Hz, rate {p['growth_rate_per_s']:.3f} 1/s"
+                        + (", closed loop)" if p.get("loop") == "closed" else ")"),
                         warn=p["status"] in ("lco", "growing"))
-    if plateaus and result.get("onset"):
-        onset = onset_line(result["onset"], result.get("criteria") or {})
-        logger.log_text(plateaus[-1]["t_end_s"], "analysis/onset", onset,
-                        warn=result["onset"]["bracket_high_mps"] is not None)
+    for line, onset in onset_lines(result):
+        logger.log_text(plateaus[-1]["t_end_s"], "analysis/onset", line, warn=onset["bracket_high_mps"] is not None)
 
 
 def _hz(f_hz: float | None) -> str:
@@ -287,12 +289,26 @@ def onset_line(o: dict[str, Any], crit: dict[str, Any]) -> str:
             f"extrapolated from decay rates: {extrapolated}; interpolated across the bracket: {interpolated}")
 
 
+def onset_lines(result: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """(line, onset) of each loop that has plateaus: the open loop's onset, then the closed loop's (its line says
+    so: the controller's flutter speed, not the panel's)."""
+    plateaus = result.get("plateaus") or []
+    crit = result.get("criteria") or {}
+    out = []
+    if any(p.get("loop", "open") == "open" for p in plateaus):
+        out.append((onset_line(result["onset"], crit), result["onset"]))
+    if result.get("closed_loop_onset"):
+        out.append(("closed loop: " + onset_line(result["closed_loop_onset"], crit), result["closed_loop_onset"]))
+    return out
+
+
 def format_table(result: dict[str, Any]) -> str:
     """Human-readable plateau table and onset lines of an `analyze_bag` result."""
     from panel_rig.analysis.flutter_test import prediction_text
 
+    loops = any(p.get("loop") == "closed" for p in result["plateaus"])  # the column only when a loop was closed
     head = (f"{'#':>2} {'t_s':>13} {'U_mps':>7} {'rms_w/L':>9} {'peak_w/L':>9} {'f_Hz':>6} "
-            f"{'rate_1/s':>8} status")
+            f"{'rate_1/s':>8} " + ("loop   " if loops else "") + "status")
     lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
              f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})"]
     refused = result.get("refused_commands") or {}
@@ -321,15 +337,14 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(
             f"{p['index']:>2} {p['t_start_s']:>6.1f}-{p['t_end_s']:<6.1f} {p['airspeed_mps']:>7.2f} "
             f"{p['rms_tip_w_over_L']:>9.4g} {p['peak_tip_w_over_L']:>9.4g} {_hz(p['dominant_frequency_hz']):>6} "
-            f"{_rate(p):>8} {p['status']}"
+            f"{_rate(p):>8} " + (f"{p.get('loop', 'open'):<6} " if loops else "") + p["status"]
         )
     for p in result["plateaus"]:  # a force held on the shaker: the table's RMS is the motion about the deflection
         mean = p.get("mean_tip_w_over_L") or 0.0
         if abs(mean) > max(p["rms_tip_w_over_L"], HELD_DEFLECTION_W_OVER_L):
             lines.append(f"plateau {p['index']}: the tip is held at w/L = {mean:.4g} on average (a static deflection, "
                          "a force held on the shaker); rms_w/L is the motion about it")
-    if result["plateaus"]:
-        lines.append(onset_line(result["onset"], crit))
+    lines.extend(line for line, _ in onset_lines(result))
     ft = result.get("flutter_test")
     if ft and not ft["test_points"] and ft.get("no_test_point_reason"):
         lines.append(f"flutter-test replay: no test point ({ft['no_test_point_reason']})")

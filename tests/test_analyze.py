@@ -1062,3 +1062,43 @@ def test_a_plateau_still_growing_when_the_rig_aborted_is_growing_not_lco() -> No
     assert p["status"] == "growing" and p["late_growth_rate_per_s"] > 1.0, p
     (p,) = analyze_series(t, w, u, {})["plateaus"]
     assert p["status"] == "lco"  # (the irregular rule, unchanged without an abort)
+
+
+def test_control_spans_end_a_watchdog_timeout_after_the_last_command() -> None:
+    from panel_rig.analysis.bag_analysis import control_spans
+
+    cmds = {"control/force_cmd": [(1.0, 0.1), (1.05, 0.2), (1.1, 0.0), (2.0, 0.3)]}
+    assert control_spans(cmds, 0.1) == [(1.0, pytest.approx(1.2)), (2.0, pytest.approx(2.1))]
+    assert control_spans({}, 0.1) == []
+
+
+def test_a_plateau_is_cut_where_a_controller_closes_the_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A controller switched on in the middle of the 11 m/s LCO plateau (t = 28 s) and left on: the plateau is cut
+    there, the parts after it are 'closed', and the open loop's onset comes from the open plateaus alone (as without
+    a controller), the closed loop's from the closed ones, on a line of its own. Before, the controller's commands
+    were not read from the bag and every plateau spoke of the open loop."""
+    from geometry_msgs.msg import WrenchStamped
+
+    def control(writer: BagWriter) -> None:
+        for ns in range(28_000_000_000, 40_000_000_000, 5_000_000):  # 200 Hz
+            msg = WrenchStamped()
+            _stamp(msg, ns)
+            msg.wrench.force.z = 0.01
+            writer.write("/rig/control/force_cmd", msg, ns, qos="reliable")
+
+    _write_synthetic(tmp_path / "closed", extra=control)
+    res = analyze_bag(tmp_path / "closed")
+    loops = [(round(p["airspeed_mps"]), p["loop"]) for p in res["plateaus"]]
+    assert loops == [(8, "open"), (9, "open"), (10, "open"), (11, "open"), (11, "closed"), (12, "closed")], loops
+    assert res["plateaus"][3]["t_end_s"] <= 28.0 <= res["plateaus"][4]["t_start_s"] < 28.01
+    _write_synthetic(tmp_path / "plain")
+    plain = analyze_bag(tmp_path / "plain")
+    assert all(p["loop"] == "open" for p in plain["plateaus"]) and plain["closed_loop_onset"] is None
+    assert res["onset"]["bracket_low_mps"] == pytest.approx(plain["onset"]["bracket_low_mps"])
+    assert res["onset"]["bracket_high_mps"] == pytest.approx(plain["onset"]["bracket_high_mps"], abs=0.01)  # 4 s of 8
+    closed = res["closed_loop_onset"]
+    assert closed["bracket_low_mps"] is None and closed["bracket_high_mps"] == pytest.approx(11.0, abs=0.05)
+    assert main([str(tmp_path / "closed")]) == 0
+    out = capsys.readouterr().out
+    assert "loop   status" in out and " closed lco" in out, out
+    assert "\nflutter onset bracket: " in out and "\nclosed loop: flutter onset: at or below 11.00 m/s" in out, out

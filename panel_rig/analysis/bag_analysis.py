@@ -51,6 +51,10 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   ``onset_ceiling`` of the largest, at least ``onset_min_windows`` of them on a line), and its lower end
   ``decaying`` (U > 0.5 m/s; a ``stationary`` or ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
   between the two bracketing plateaus (``interpolated_mps``).
+* **Closed loop**: while a controller commands the panel (``control/force_cmd`` commands no more than the rig's
+  watchdog timeout apart) the panel is another system. A plateau is cut where the loop closes or opens, each part is
+  ``open`` or ``closed`` (``loop``), and the onset is estimated over each loop's plateaus alone: ``onset`` of the
+  open loop, ``closed_loop_onset`` of the closed one (None without closed-loop plateaus).
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ from panel_rig.analysis.signals import dominant_frequency_hz, resolved_frequency
 
 MIN_ENVELOPE_WINDOWS = 8  # envelope windows a free response is cut into at least (when each is >= envelope_window_s)
 SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
+CONTROL_TOPIC = "control/force_cmd"
+CONTROL_TIMEOUT_S = 0.1  # the rig's watchdog default (control.timeout_s), for a run that did not record its own
 Commands = dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
 
 
@@ -182,6 +188,34 @@ def cut_at_setpoint_changes(t_s: np.ndarray, airspeed_mps: np.ndarray, airspeed_
             i1 = int(np.searchsorted(t_s, t_cut, side="left"))
         if i1 > i0 and t_s[i1 - 1] - t_s[i0] >= crit.min_duration_s:
             out.append((i0, i1))
+    return out
+
+
+def control_spans(commands: Commands, timeout_s: float = CONTROL_TIMEOUT_S) -> list[tuple[float, float]]:
+    """(start, end) times (s) in which the loop was closed: from a control command until the next one, or until the
+    watchdog's ``timeout_s`` after the last of a run of them (then the rig zeroes the control force)."""
+    times = sorted(t for t, _ in commands.get(CONTROL_TOPIC, []))
+    spans: list[tuple[float, float]] = []
+    for t in times:
+        if spans and t - spans[-1][1] <= timeout_s:
+            spans[-1] = (spans[-1][0], t)
+        else:
+            spans.append((t, t))
+    return [(a, b + timeout_s) for a, b in spans]
+
+
+def cut_at_loop_switches(t_s: np.ndarray, ranges: list[tuple[int, int]], spans: list[tuple[float, float]],
+                         crit: Criteria = Criteria()) -> list[tuple[int, int, bool]]:
+    """Split each plateau [i0, i1) where the loop closes or opens (``spans``: :func:`control_spans`); the parts of
+    at least ``min_duration_s`` as (i0, i1, closed)."""
+    out = []
+    edges = np.array(sorted(x for span in spans for x in span))
+    for i0, i1 in ranges:
+        cuts = [i0, *np.searchsorted(t_s, edges[(edges > t_s[i0]) & (edges < t_s[i1 - 1])]).tolist(), i1]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if b > a and t_s[b - 1] - t_s[a] >= crit.min_duration_s:
+                mid = 0.5 * (t_s[a] + t_s[b - 1])
+                out.append((a, b, any(lo <= mid <= hi for lo, hi in spans)))
     return out
 
 
@@ -359,17 +393,22 @@ def estimate_onset(plateaus: list[dict[str, Any]], crit: Criteria = Criteria()) 
 
 # ---------------------------------------------------------------------------------- a whole run
 def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.ndarray, commands: Commands,
-                   crit: Criteria = Criteria(), abort_times_s: Sequence[float] = ()) -> dict[str, Any]:
-    """Plateaus (numbered from 1), their metrics and the onset estimate of one run's series; ``abort_times_s``:
-    when the rig aborted (a plateau that ends within ABORT_END_S of one ended by it)."""
+                   crit: Criteria = Criteria(), abort_times_s: Sequence[float] = (),
+                   control_timeout_s: float = CONTROL_TIMEOUT_S) -> dict[str, Any]:
+    """Plateaus (numbered from 1), their metrics and the onset estimates of one run's series (open and closed loop);
+    ``abort_times_s``: when the rig aborted (a plateau that ends within ABORT_END_S of one ended by it);
+    ``control_timeout_s``: the rig's control watchdog (:func:`control_spans`)."""
     ranges = cut_at_setpoint_changes(t_s, airspeed_mps, commands.get("airspeed_cmd", []),
                                      find_plateaus(t_s, airspeed_mps, crit), crit)
+    parts = cut_at_loop_switches(t_s, ranges, control_spans(commands, control_timeout_s), crit)
     plateaus = [analyze_plateau(t_s, tip_w_over_L, airspeed_mps, commands, i0, i1, crit,
                                 aborted=any(t_s[i0] <= a <= t_s[i1 - 1] + ABORT_END_S for a in abort_times_s))
-                for i0, i1 in ranges]
-    for k, p in enumerate(plateaus, start=1):
+                for i0, i1, _ in parts]
+    for k, (p, (_, _, closed)) in enumerate(zip(plateaus, parts, strict=True), start=1):
         p["index"] = k
         p["lco"] = p["status"] == "lco"
+        p["loop"] = "closed" if closed else "open"
+    closed = [p for p in plateaus if p["loop"] == "closed"]
     dt = mean_dt(t_s)
     return {
         "duration_s": float(t_s[-1] - t_s[0]),
@@ -378,8 +417,15 @@ def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.n
         "gaps": recording_gaps(t_s),
         "criteria": asdict(crit),
         "plateaus": plateaus,
-        "onset": estimate_onset(plateaus, crit),
+        "onset": estimate_onset([p for p in plateaus if p["loop"] == "open"], crit),
+        "closed_loop_onset": estimate_onset(closed, crit) if closed else None,
     }
+
+
+def shown_loop(result: dict[str, Any]) -> str:
+    """The loop whose onset a single figure shows: "open", or "closed" when every plateau was closed-loop."""
+    plateaus = result.get("plateaus") or []
+    return "closed" if plateaus and all(p.get("loop") == "closed" for p in plateaus) else "open"
 
 
 def shaker_on_times(commands: Commands) -> list[float]:
@@ -400,6 +446,8 @@ def write_plots(plots_dir: Path, t_s: np.ndarray, tip_w_over_L: np.ndarray, airs
         plots.plot_time_history(plots_dir / "time_history.png", t_s, tip_w_over_L, airspeed_mps, spans,
                                 shaker_on_times(commands or {})),
         plots.plot_spectrogram(plots_dir / "spectrogram.png", t_s, tip_w_over_L, airspeed_mps),
-        plots.plot_lco_vs_airspeed(plots_dir / "lco_vs_airspeed.png", result["plateaus"], result["onset"]),
+        plots.plot_lco_vs_airspeed(plots_dir / "lco_vs_airspeed.png", result["plateaus"],
+                                   result["closed_loop_onset" if shown_loop(result) == "closed" else "onset"],
+                                   shown_loop(result)),
     ]
     return [str(p) for p in paths]

@@ -197,27 +197,34 @@ def plot_spectrogram(path: str | Path, t_s: np.ndarray, tip_w_over_L: np.ndarray
     return _save(fig, path)
 
 
-def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict | None = None) -> Path:
-    """Fig. 8 from a recording: RMS tip w/L and dominant frequency per airspeed plateau."""
+def plot_lco_vs_airspeed(path: str | Path, plateaus: Sequence[dict], onset: dict | None = None,
+                         onset_loop: str = "open") -> Path:
+    """Fig. 8 from a recording: RMS tip w/L and dominant frequency per airspeed plateau; a closed-loop plateau
+    (``loop`` "closed") hollow. ``onset`` is the ``onset_loop`` loop's ("closed": labelled so)."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
     if not _any_lco(plateaus):  # a subcritical run (a flutter test)
         ax2.text(0.5, 0.5, "no plateau at an LCO or growing:\nno LCO frequency", transform=ax2.transAxes,
                  ha="center", va="center", color="0.4")
     for status, (color, marker) in _STATUS_STYLE.items():
-        sel = [p for p in plateaus if p["status"] == status]
-        if not sel:
-            continue
-        u = [p["airspeed_mps"] for p in sel]
-        ax1.plot(u, [p["rms_tip_w_over_L"] for p in sel], marker, color=color, label=status)
-        if status in ("lco", "growing"):
-            ax2.plot(u, [p["dominant_frequency_hz"] for p in sel], marker, color=color, label=status)
+        for loop in ("open", "closed"):
+            sel = [p for p in plateaus if p["status"] == status and p.get("loop", "open") == loop]
+            if not sel:
+                continue
+            u = [p["airspeed_mps"] for p in sel]
+            style = dict(color=color, label=status if loop == "open" else f"{status}, closed loop")
+            if loop == "closed":
+                style["markerfacecolor"] = "none"
+            ax1.plot(u, [p["rms_tip_w_over_L"] for p in sel], marker, **style)
+            if status in ("lco", "growing"):
+                ax2.plot(u, [p["dominant_frequency_hz"] for p in sel], marker, **style)
     onset = onset or {}
     lo, hi, ex = onset.get("bracket_low_mps"), onset.get("bracket_high_mps"), onset.get("extrapolated_mps")
+    which = " (closed loop)" if onset_loop == "closed" else ""
     for ax in (ax1, ax2):
         if lo is not None and hi is not None:
-            ax.axvspan(lo, hi, color="0.8", alpha=0.5, label="onset bracket")
+            ax.axvspan(lo, hi, color="0.8", alpha=0.5, label=f"onset bracket{which}")
         if ex is not None:
-            ax.axvline(ex, color="k", ls="--", lw=1, label=f"extrapolated {ex:.2f} m/s")
+            ax.axvline(ex, color="k", ls="--", lw=1, label=f"extrapolated{which} {ex:.2f} m/s")
         ax.grid(alpha=0.3)
         ax.set_xlabel("airspeed, m/s")
     ax1.set(ylabel="RMS tip w/L", title=lco_amplitude_title(plateaus))

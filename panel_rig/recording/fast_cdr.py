@@ -1,6 +1,7 @@
-"""Fixed-layout reads of the rig's three high-rate messages from their CDR bytes: the tip
-(``geometry_msgs/PointStamped``: z), the airspeed (``geometry_msgs/Vector3Stamped``: x) and the modal states
-(``sensor_msgs/JointState``: position). mcap-ros2's dynamic decoder builds a whole message object per sample, and
+"""Fixed-layout reads of the rig's high-rate messages from their CDR bytes: the tip
+(``geometry_msgs/PointStamped``: z), the airspeed (``geometry_msgs/Vector3Stamped``: x), the modal states
+(``sensor_msgs/JointState``: position) and a controller's command (``geometry_msgs/WrenchStamped``: force.z).
+mcap-ros2's dynamic decoder builds a whole message object per sample, and
 it took a third of `panel-rig analyze`'s time on a flutter test's bag (a million samples).
 
 Each function returns None for bytes it does not read (not little-endian CDR): the caller decodes those the general
@@ -39,6 +40,12 @@ def vector_x(data: bytes) -> float | None:
     """Vector3Stamped.vector.x."""
     pos = _after_header(data)
     return None if pos is None else _F64.unpack_from(data, _align(pos, 8))[0]
+
+
+def wrench_force_z(data: bytes) -> float | None:
+    """WrenchStamped.wrench.force.z (the force's x, y, z come first, as a point's)."""
+    pos = _after_header(data)
+    return None if pos is None else _F64.unpack_from(data, _align(pos, 8) + 16)[0]
 
 
 def joint_positions(data: bytes) -> tuple[float, ...] | None:

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from panel_rig.analysis.bag_analysis import SHAKER_TOPICS, mean_dt
+from panel_rig.analysis.bag_analysis import CONTROL_TOPIC, SHAKER_TOPICS, mean_dt
 from panel_rig.config import PanelConfig
 from panel_rig.recording.errors import RecordingError
-from panel_rig.recording.fast_cdr import joint_positions, point_z, vector_x
+from panel_rig.recording.fast_cdr import joint_positions, point_z, vector_x, wrench_force_z
 from panel_rig.recording.metadata import read_metadata
 from panel_rig.recording.reader import (
     find_mcap,
@@ -84,7 +84,7 @@ def _parameters(bag_dir: Path, mcap_path: Path) -> dict[str, Any]:
 def _topics(names: list[str]) -> dict[str, str]:
     """Suffix ('tip_displacement', 'shaker/force_cmd', ...) -> full topic name."""
     wanted = ("tip_displacement", "airspeed", "modal_states", "airspeed_cmd", "panel_shape", "diagnostics",
-              MONITOR_TOPIC, *SHAKER_TOPICS)
+              MONITOR_TOPIC, CONTROL_TOPIC, *SHAKER_TOPICS)
     out: dict[str, str] = {}
     for suffix in wanted:
         match = sorted(n for n in names if n == f"/{suffix}" or n.endswith(f"/{suffix}"))
@@ -123,10 +123,10 @@ class _Messages:
 
     def __init__(self, by_name: dict[str, str]) -> None:
         self.by_name = by_name  # full topic name -> kind (its suffix)
-        self.tip, self.air, self.modal = _Series(), _Series(), _ModalRows()
+        self.tip, self.air, self.modal, self.control = _Series(), _Series(), _ModalRows(), _Series()
         self.events: list[tuple[int, str, Any]] = []  # (stamp_ns, kind, decoded message)
         self._fast = {"tip_displacement": (point_z, self.tip), "airspeed": (vector_x, self.air),
-                      "modal_states": (joint_positions, self.modal)}
+                      "modal_states": (joint_positions, self.modal), CONTROL_TOPIC: (wrench_force_z, self.control)}
 
     def take(self, message: tuple[str, str, int, bytes, Any]) -> None:
         topic, _, stamp_ns, data, decode = message
@@ -136,7 +136,8 @@ class _Messages:
             value = read(data)
             if value is None:  # not little-endian CDR: the general decoder
                 msg = decode(data)
-                value = msg.point.z if kind == "tip_displacement" else msg.vector.x if kind == "airspeed" else msg.position
+                value = (msg.point.z if kind == "tip_displacement" else msg.vector.x if kind == "airspeed"
+                         else msg.wrench.force.z if kind == CONTROL_TOPIC else msg.position)
             series.append(stamp_ns, value)
         else:
             self.events.append((stamp_ns, kind, decode(data)))
@@ -212,6 +213,10 @@ def load_series(bag_dir: Path, shapes: bool = False) -> BagSeries:
     t_s, tip_m = tip.sorted(t0_ns)
     air_t, air_u = air.sorted(t0_ns)
     modal_t, q = modal.sorted(t0_ns)
+    control_t, control_f = got.control.sorted(t0_ns)
+    if control_t.size:  # a controller's commands (the rig refuses a non-finite one)
+        ok = np.isfinite(control_f)
+        commands[CONTROL_TOPIC] = list(zip(control_t[ok].tolist(), control_f[ok].tolist()))
     return BagSeries(
         bag_dir=bag_dir, t_s=t_s, tip_w_over_L=tip_m / length_m, airspeed_mps=_interp(t_s, air_t, air_u),
         q=_modal_on(t_s, modal_t, q), force_npm=_hold(t_s, commands.get("shaker/force_cmd", [])),
