@@ -396,7 +396,8 @@ class RerunLogger:
         """The flutter monitor after a test point, one sample per series at ``time_s``: the predicted U_f with its
         interval (m/s) and each predictor's U_f (damping trend, ZW flutter margin) where it crosses, the margin and
         the required one (unitless, own entity), the last point's identified damping (x 1000) with its 95 %
-        interval and its ZW flutter margin F (Hz^4, when both its modes are identified; the PNG's ZW panel); and
+        interval and its ZW flutter margin F (Hz^4, when both its modes are identified and the first one's damping is
+        > 0: the points the ZW predictor fits, the PNG's ZW panel); and
         the 2-D view ``flutter_vg`` of every point so far (see :func:`vg_scene`)."""
         if self._rec is None:
             return
@@ -418,13 +419,11 @@ class RerunLogger:
         if e is not None:
             for name, v in zip(("identified", "ci_low", "ci_high"), (e.damping_ratio, *e.damping_ci())):
                 rec.log(f"{FLUTTER_DAMPING}/{name}", rr.Scalars(1e3 * float(v)))
-        if points[-1].first is not None and e is not None:
-            from panel_rig.analysis.flutter_margin import flutter_margins
+        from panel_rig.analysis.flutter_test import margin_points, trend_curve
 
-            f_hz4 = float(flutter_margins([points[-1].first], [e])[0]) / (2 * np.pi) ** 4
-            if np.isfinite(f_hz4):
-                rec.log(f"{FLUTTER_ZW}/point", rr.Scalars(f_hz4))
-        from panel_rig.analysis.flutter_test import trend_curve
+        _, f_rad4 = margin_points(points[-1:])  # the points the ZW predictor fits (a first mode with damping > 0)
+        if f_rad4.size and np.isfinite(f_rad4[0]):
+            rec.log(f"{FLUTTER_ZW}/point", rr.Scalars(float(f_rad4[0]) / (2 * np.pi) ** 4))
 
         uf = float(pred.speed_mps) if pred is not None and np.isfinite(pred.speed_mps) else None
         for entity, archetype in vg_scene(points, trend_curve(points, decision), uf).items():
