@@ -35,7 +35,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
 
     Raises RecordingError (CorruptBagError for a damaged bag, naming `panel-rig bag recover`)."""
 
-    from panel_rig.analysis.bag_analysis import CONTROL_TIMEOUT_S, Criteria, analyze_series, write_plots
+    from panel_rig.analysis.bag_analysis import Criteria, analyze_series, write_plots
     from panel_rig.recording.series import load_series
 
     say = progress if progress is not None else (lambda line: None)
@@ -48,11 +48,9 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         "flutter-test points")
     if criteria is None:  # "quiet" above the run's sensor noise: a panel at rest read 5 um of noise, "stationary"
         crit = dataclasses.replace(crit, quiet_rms=quiet_rms_of(rec.parameters, rec.panel_length_m, crit.quiet_rms))
-    timeout = rec.parameters.get("control.timeout_s")
     core = analyze_series(rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, rec.commands, crit,
                           abort_times_s=[t for t, _ in rec.aborts],
-                          control_timeout_s=float(timeout) if isinstance(timeout, (int, float)) and timeout > 0
-                          else CONTROL_TIMEOUT_S)
+                          control_timeout_s=control_timeout_s(rec.parameters))
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
@@ -102,11 +100,21 @@ class FlutterTestReplay(NamedTuple):
     mode: int
 
 
+def control_timeout_s(parameters: dict[str, Any]) -> float:
+    """The run's control watchdog (s): its recorded ``control.timeout_s``, or the rig's default for a run that did
+    not record one."""
+    from panel_rig.analysis.bag_analysis import CONTROL_TIMEOUT_S
+
+    timeout = parameters.get("control.timeout_s")
+    return float(timeout) if isinstance(timeout, (int, float)) and timeout > 0 else CONTROL_TIMEOUT_S
+
+
 def _replay(rec: Any) -> FlutterTestReplay | None:
     """The flutter-test identification and predictors on a recording (the same core as `panel-rig flutter-test`):
     per airspeed plateau of the subcritical ascent the identified flutter-mode frequency and damping (95 %), and
     the predicted U_f. Bands from the model of the run's parameters (defaults for keys it lacks). None when the
     bag has no airspeed commands or the model does not flutter."""
+    from panel_rig.analysis.bag_analysis import control_spans
     from panel_rig.analysis.flutter_test import (
         DEFAULT_SETTLE_S,
         FlutterTestSettings,
@@ -144,7 +152,8 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     skipped: list[str] = []
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
                            rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps,
-                           complete_only=flutter_test and "dwell_s" in window, skipped=skipped, **window)
+                           complete_only=flutter_test and "dwell_s" in window, skipped=skipped,
+                           closed_loop_s=control_spans(rec.commands, control_timeout_s(rec.parameters)), **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,

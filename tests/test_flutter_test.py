@@ -710,6 +710,26 @@ def test_the_replay_skips_a_step_down_as_the_live_monitor_does(monkeypatch):
     assert [p.airspeed_mps for p in points] == [6.0, 7.0, 8.0, 9.0]
 
 
+def test_the_replay_takes_no_test_point_where_a_controller_closed_the_loop(monkeypatch):
+    """6, 7, 8, 9 m/s with a controller on from 60 to 80 s (the 8 m/s window): that window's damping is the
+    controlled panel's, so it is no test point, and the replay says why; the open-loop points before and after
+    are kept. Before, the replay took it as the panel's own."""
+    import numpy as np
+
+    from panel_rig.analysis import flutter_test
+
+    monkeypatch.setattr(flutter_test, "identify_point",
+                        lambda y, dt, u, bands, force=None, ssi=None: flutter_test.TestPoint(u, None, None, "stub"))
+    t = np.arange(0.0, 105.0, 1.0 / 512.0)
+    cmds = [(0.0, 6.0), (25.0, 7.0), (50.0, 8.0), (80.0, 9.0)]
+    skipped: list[str] = []
+    points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
+                                        settle_s=1.0, min_dwell_s=20.0, skipped=skipped,
+                                        closed_loop_s=[(60.0, 79.5)])
+    assert [p.airspeed_mps for p in points] == [6.0, 7.0, 9.0]
+    assert skipped == ["8.00 m/s: a controller closed the loop"]
+
+
 def test_the_v_g_figure_says_what_was_tested_and_how_it_ended():
     """The flutter-test figure had no title: an interrupted test's one-point plot read as a finished result, and
     neither the variant nor the tunnel was on it."""

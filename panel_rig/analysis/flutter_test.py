@@ -539,7 +539,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
                   force_npm: np.ndarray | None = None, settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S,
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
                   airspeed_mps: np.ndarray | None = None, complete_only: bool = False,
-                  skipped: list[str] | None = None) -> list[TestPoint]:
+                  skipped: list[str] | None = None,
+                  closed_loop_s: Sequence[tuple[float, float]] = ()) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
@@ -549,7 +550,9 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     within AIRSPEED_MATCH of the command is no test point: the tunnel did not run at it (a command the rig
     refused, an aborted rig). ``complete_only`` (a recording of the monitor, whose points each took a whole
     ``dwell_s``): a window shorter than COMPLETE_DWELL_FRACTION x ``dwell_s`` (a test stopped during its dwell) is no
-    test point either, unless it fluttered. ``skipped``: gets a line for each plateau at U > 0 that gave no point,
+    test point either, unless it fluttered. ``closed_loop_s``: (start, end) times (s) in which a controller closed
+    the loop (``bag_analysis.control_spans``); a window that overlaps one is no test point: its damping is the
+    controlled panel's, not the panel's. ``skipped``: gets a line for each plateau at U > 0 that gave no point,
     saying why (:func:`no_point_reason`)."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
@@ -566,6 +569,9 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
             continue
         if not _tunnel_at(t, airspeed_mps, t_from, t_end, u):
             why.append(f"{u:.2f} m/s: the tunnel was not at it")
+            continue
+        if any(lo < t_end and hi > t_from for lo, hi in closed_loop_s):
+            why.append(f"{u:.2f} m/s: a controller closed the loop")
             continue
         if out and u <= out[-1].airspeed_mps:  # the monitor follows the ascent only: a step down is no point (the
             why.append(f"{u:.2f} m/s: a step down")  # replay stopped there, and a live test's later points, the
