@@ -65,6 +65,19 @@ def test_report_rows_have_the_header_s_cells():
     assert cells(row) == cells(header) == 7
 
 
+def test_report_cells_read_as_text_not_python_dicts():
+    """report.md's C1, C2 and C5 cells were raw Python dicts ({'airspeed_mps': [...], 'full_rms': [None, ...]});
+    a cell now reads "airspeed_mps: 10, 11; full_rms: -, 0.12", and the header names where the paper's values come
+    from (published_results.md is not in the repository: its transcription is)."""
+    from panel_rig.analysis.report import markdown
+
+    text = markdown([{"id": "C5", "what": "sweep", "paper": "0 -> 0.5", "verdict": "ok", "note": "",
+                      "ours": {"airspeed_mps": [10.0, 11.0], "full_rms": [None, 0.1234567]}, "exact": None}], 1.0)
+    (row,) = (ln for ln in text.splitlines() if ln.startswith("| C5"))
+    assert "airspeed_mps: 10, 11; full_rms: -, 0.123457" in row and "{" not in row and "None" not in row
+    assert "panel_rig/analysis/published.py" in text
+
+
 @pytest.fixture(scope="module")
 def panel() -> tuple[Any, float, int]:
     """The paper panel's model, its linear U_f and its flutter mode."""

@@ -177,7 +177,8 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
     run_lco(cfg, u_c, 10.0, "full", model=model)
     rt = 10.0 / (time.perf_counter() - t0)
     add("P1", "cost of the nonlinear march", "full order 'almost impossible' on a Cray T916",
-        f"ROM march {rt:.0f}x real time on one core", True, "benchmarks/run.py for all ratios")
+        f"{rt:.0f}x real time on one core: one 10 s full-nonlinear run at U = {u_c:.2f} m/s, its set-up included",
+        True, "the march alone runs faster (rom_realtime_factor, 60 s): benchmarks/run.py for all ratios")
     result = {"rows": rows, "wall_s": time.perf_counter() - t_start, "flutter_ratio_to_paper": ratio,
               "tip_rms_check": rms(tip3[-2048:])}
     (out / "results.json").write_text(jsonio.dumps(result, indent=2, default=float))
@@ -192,14 +193,30 @@ def node_of(x: np.ndarray, rms_w: np.ndarray) -> float | None:
     return float(x[idx[-1]]) if idx else None
 
 
+def _text(value: object) -> str:
+    """A value as a reader wants it in a table: a list as "a, b, c" (null as "-"), a dict as "key: value; ..."
+    (the C1, C2 and C5 cells were raw Python dicts)."""
+    if value is None:
+        return "-"
+    if isinstance(value, dict):
+        return "; ".join(f"{k}: {_text(v)}" for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_text(v) for v in value)
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
 def _cell(value: object) -> str:
     """A markdown table cell: a `|` inside (|w/L|) split rows C4 and C5 into more cells than the header has."""
-    return str(value).replace("|", "\\|")
+    return _text(value).replace("|", "\\|")
 
 
 def markdown(rows: list[dict], wall_s: float) -> str:
     lines = ["# panel_rig: Tang & Dowell (2002) reproduced", "",
-             "Paper value beside ours for every id of `published_results.md`; see docs/validation.md.", "",
+             "Paper value beside ours for every id of the paper's published figures as numbers "
+             "(`published_results.md`, transcribed with its ids in `panel_rig/analysis/published.py`); see "
+             "docs/validation.md.", "",
              "`ours` is the paper's (cubic) structure; `exact` the same run with the geometrically exact (elastica) "
              "structure (docs/validation.md, section 5).", "",
              "| id | what | paper | ours | verdict | note | exact |", "|---|---|---|---|---|---|---|"]
