@@ -138,6 +138,26 @@ def test_watchdog_zeroes_the_actuator_logs_and_rearms() -> None:
     assert act.state == ACTIVE and any("resumed" in m for _, m in log.lines)
 
 
+def test_a_controller_slower_than_the_watchdog_logs_one_trip_per_second_not_each() -> None:
+    """An 8 Hz controller with the 0.1 s watchdog trips it at every gap: the trip and resume lines came at ~16 per
+    second. Now at most one trip (with its resume) per LOG_INTERVAL_S of simulated time, the next one counting
+    those left out; every trip is still counted (``timeouts``, /diagnostics)."""
+    from panel_rig.rig.control import LOG_INTERVAL_S
+
+    log = Recorder()
+    act = ControlActuator(DT, ControlSettings(timeout_s=0.1), logger=log)
+    period = round(0.125 / DT)  # 8 Hz
+    for k in range(round(3.0 / DT)):
+        if k % period == 0:
+            act.command(0.1, k * DT, k * DT)
+        act.step(k * DT)
+    assert act.timeouts == 24
+    trips = [m for _, m in log.lines if "watchdog" in m]
+    resumes = [m for _, m in log.lines if "resumed" in m]
+    assert len(trips) == 3 == round(3.0 / LOG_INTERVAL_S) and len(resumes) == 3, log.lines
+    assert "more trip(s)" not in trips[0] and "7 more trip(s)" in trips[1], trips
+
+
 class LinearOscillator:
     """A minimal stepper (w/L = q; the force is in N/m) for the rig-level checks."""
 

@@ -9,6 +9,8 @@ and is held until the next command.
 
 Watchdog: once commands have started, if none arrives for longer than ``timeout_s`` the target goes to zero (the
 force then decays with the actuator's own dynamics) and the event is logged; the next valid command re-arms it.
+A controller slower than the watchdog trips it at every gap: at most one trip (and its resume) is logged per
+LOG_INTERVAL_S of simulated time, the next line counting those left out (``timeouts`` counts them all).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 import numpy as np
 
 IDLE, ACTIVE, TIMED_OUT = "idle", "active", "timed_out"
+LOG_INTERVAL_S = 1.0  # at most one watchdog trip and its resume logged per second of simulated time
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,9 @@ class ControlActuator:
         self.state = IDLE
         self._pending: deque[tuple[float, float]] = deque()  # (arrival_s, value)
         self._last_arrival_s = -math.inf
-        self._trip_logged = False
+        self._trip_logged = False  # the current trip was logged (so is its resume)
+        self._last_trip_log_s = -math.inf
+        self._unlogged_trips = 0
 
     # ---- commands -------------------------------------------------------------------------------------
     def command(self, force_npm: float, stamp_s: float, arrival_s: float) -> None:
@@ -121,6 +126,22 @@ class ControlActuator:
         self.force_npm, self.target_npm, self.state, pending, self._last_arrival_s, self.timeouts = snap
         self._pending = deque(pending)
 
+    def _log_trip(self, t_s: float) -> None:
+        """The watchdog's warning, at most once per LOG_INTERVAL_S (then naming the trips left out since)."""
+        if self.log is None:
+            return
+        if t_s - self._last_trip_log_s < LOG_INTERVAL_S:
+            self._unlogged_trips += 1
+            return
+        more = (f" ({self._unlogged_trips} more trip(s) since the last of these lines, not logged; "
+                "/diagnostics control_timeouts counts every one)" if self._unlogged_trips else "")
+        self.log.warning(f"control watchdog: last command at t = {self._last_arrival_s:.4f} s, none for "
+                         f"control.timeout_s = {self.settings.timeout_s:g} s: control actuator to zero at "
+                         f"t = {t_s:.4f} s{more}")
+        self._trip_logged = True
+        self._last_trip_log_s = t_s
+        self._unlogged_trips = 0
+
     @property
     def quiet(self) -> bool:
         """No force, none commanded and none pending, watchdog not armed: :meth:`step` returns 0 and changes
@@ -133,7 +154,7 @@ class ControlActuator:
             arrival, value = self._pending.popleft()
             self.target_npm = value
             self._last_arrival_s = arrival
-            if self.state == TIMED_OUT and self.log is not None:
+            if self.state == TIMED_OUT and self._trip_logged and self.log is not None:
                 self.log.info(f"control commands resumed at t = {t_start_s:.3f} s")
             self.state = ACTIVE
             self._trip_logged = False
@@ -141,11 +162,7 @@ class ControlActuator:
             self.state = TIMED_OUT
             self.target_npm = 0.0
             self.timeouts += 1
-            if not self._trip_logged and self.log is not None:
-                self.log.warning(f"control watchdog: last command at t = {self._last_arrival_s:.4f} s, none for "
-                                 f"control.timeout_s = {self.settings.timeout_s:g} s: control actuator to zero at "
-                                 f"t = {t_start_s:.4f} s")
-                self._trip_logged = True
+            self._log_trip(t_start_s)
         if self.force_npm == 0.0 and self.target_npm == 0.0:
             return 0.0
         s = self.settings
