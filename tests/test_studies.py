@@ -121,6 +121,21 @@ def test_bad_bifurcation_spec_names_the_key(base):
         parse_spec({**spec, "duration_s": 1e-5}, base)
 
 
+def test_the_store_says_what_its_status_codes_mean(base, tmp_path):
+    """A flutter study's `status` was a bare int8 in the store: its meaning was only in panel_rig/studies/cases.py.
+    It now carries CF flag attributes, read back from the Zarr store by xarray."""
+    import xarray as xr
+
+    from panel_rig.studies.cases import FOUND, UNSTABLE_AT_START
+    from panel_rig.studies.store import STORE_NAME, Store
+
+    Store.open(tmp_path, parse_spec(FLUTTER_SPEC, base))
+    attrs = xr.open_zarr(tmp_path / STORE_NAME, consolidated=False)["status"].attrs
+    meanings = dict(zip(attrs["flag_values"], attrs["flag_meanings"].split(), strict=True))
+    assert meanings[FOUND] == "flutter_found" and meanings[UNSTABLE_AT_START] == "unstable_at_1_mps"
+    assert len(meanings) == 4 and attrs["long_name"] == "flutter case status"
+
+
 @pytest.mark.parametrize("occupant", ["zarr_v2_group", "file"])
 def test_the_store_never_replaces_what_it_did_not_make(base, tmp_path, occupant):
     from panel_rig.studies.store import STORE_NAME, Store, StoreError

@@ -20,6 +20,9 @@ from panel_rig.model.stepper import BatchStepper, Stepper
 #: case status (flutter kinds): flutter found, none below 60 m/s, the computation failed, unstable already at the
 #: scan's 1 m/s (a result, not a failure: with the ROM at low damping, its error at high reduced frequency)
 FOUND, NO_FLUTTER, FAILED, UNSTABLE_AT_START = 0, 1, 2, 3
+#: the codes' meanings, in the store as the ``status`` variable's CF flag attributes (flag_values, flag_meanings)
+STATUS_MEANINGS = {FOUND: "flutter_found", NO_FLUTTER: "no_flutter_below_60_mps", FAILED: "computation_failed",
+                   UNSTABLE_AT_START: "unstable_at_1_mps"}
 FLUTTER_VARS = ("flutter_speed_mps", "flutter_frequency_hz", "dominant_mode", "status", "compute_s")
 BIFURCATION_VARS = ("rms_tip_w_over_L", "peak_tip_w_over_L", "dominant_frequency_hz", "steady_after_s", "diverged",
                     "compute_s")

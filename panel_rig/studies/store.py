@@ -21,7 +21,7 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from panel_rig.studies.cases import BIFURCATION_VARS, FLUTTER_VARS
+from panel_rig.studies.cases import BIFURCATION_VARS, FLUTTER_VARS, STATUS_MEANINGS
 from panel_rig.studies.spec import Study
 
 STORE_NAME = "results.zarr"
@@ -62,6 +62,10 @@ def template(study: Study, state_len: int = 0) -> xr.Dataset:
     if study.kind == "bifurcation":
         data["state"] = (("case", "state_index"), np.full((n, state_len), np.nan))
     data["done"] = ("case", np.zeros(n, dtype=bool))
+    if "status" in data:  # a reader of the store alone learns what the codes mean (CF flag attributes)
+        data["status"] = ("case", data["status"][1], {
+            "long_name": "flutter case status", "flag_values": list(STATUS_MEANINGS),
+            "flag_meanings": " ".join(STATUS_MEANINGS.values())})
     attrs = {"kind": study.kind, "fingerprint": study.fingerprint, "spec": json.dumps(study.spec, default=str),
              "base": json.dumps(study.base, default=str), "options": json.dumps(study.options, default=str)}
     return xr.Dataset(data, coords=coords, attrs=attrs)
