@@ -748,8 +748,30 @@ class _Parser(argparse.ArgumentParser):
         # that starts below zero (`--vg -5:20:1`) is a value too: it gets the range's own message, not argparse's
         self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(:[^:\s]*)*$")
 
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        self._given = list(sys.argv[1:] if args is None else args)  # for error(): the options it did not know
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str) -> None:  # one line, status 2
+        unknown = self._unknown_options() if message.startswith("the following arguments are required") else []
+        if unknown:  # a mistyped required option: argparse names only the missing one (`paper --outt x`)
+            message = f"{'; '.join(unknown)}; {message}"
         raise UsageError(message)
+
+    def _unknown_options(self) -> list[str]:
+        """'unrecognized argument X (did you mean Y?)' for each given option this parser does not know."""
+        import difflib
+
+        known = list(self._option_string_actions)
+        out = []
+        for token in getattr(self, "_given", []):
+            name = token.split("=", 1)[0]
+            if (not name.startswith("-") or self._negative_number_matcher.match(name)
+                    or any(opt.startswith(name) for opt in known)):
+                continue
+            close = difflib.get_close_matches(name, known, n=1)
+            out.append(f"unrecognized argument {name}" + (f" (did you mean {close[0]}?)" if close else ""))
+        return out
 
 
 def package_version() -> str:

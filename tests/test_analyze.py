@@ -229,6 +229,13 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     shutil.copytree(tmp_path / "killed", run_dir / "rig_1")
     assert main([str(run_dir)]) == 2
     assert _one_error_line(capsys).endswith("found 0; it holds the bag rig_1: give it")
+    # `make run`'s out/demo holds the analysis of the bag (analysis.json names it), not the bag
+    out_dir = tmp_path / "demo_out"
+    out_dir.mkdir()
+    (out_dir / "analysis.json").write_text('{"bag": "bags/rig_1"}')
+    assert main([str(out_dir)]) == 2
+    assert _one_error_line(capsys).endswith("it holds an analysis's output (analysis.json) of the bag bags/rig_1: "
+                                            "give that")
     with pytest.raises(SystemExit) as exc:
         main([])
     assert exc.value.code == 2

@@ -54,3 +54,13 @@ def test_every_variant_is_accepted_and_a_bad_one_exits_2(capsys, command):
     if command == "modes":  # cheap: every variant's own linearisation
         f = [_json(capsys, ["modes", "--variant", v, "--json"])["natural_frequencies_hz"] for v in VARIANTS]
         np.testing.assert_allclose(f, [f[0]] * len(f), rtol=1e-6)
+
+
+def test_a_mistyped_required_option_is_named_with_the_missing_one(capsys):
+    """`paper --outt x` said only "the following arguments are required: --out", hiding the typo."""
+    assert main(["paper", "--outt", "x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("panel-rig: error: unrecognized argument --outt (did you mean --out?); the following arguments "
+                   "are required: --out"), err
+    assert main(["paper"]) == 2  # nothing mistyped: argparse's message alone
+    assert capsys.readouterr().err.strip() == "panel-rig: error: the following arguments are required: --out"

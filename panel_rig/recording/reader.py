@@ -50,8 +50,21 @@ def single_mcap(bag_dir: Path) -> Path:
     """The one `*.mcap` file in `bag_dir` (metadata.yaml not consulted)."""
     candidates = sorted(Path(bag_dir).glob("*.mcap"))
     if len(candidates) != 1:
-        raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}{_bags_inside(bag_dir)}")
+        hint = _bags_inside(bag_dir) or _analysis_output(bag_dir)
+        raise RecordingError(f"expected one .mcap file in {bag_dir}, found {len(candidates)}{hint}")
     return candidates[0]
+
+
+def _analysis_output(directory: Path) -> str:
+    """"; it holds an analysis's output (analysis.json) of the bag X: give that" when ``directory`` is where an
+    analysis wrote (`make run`'s out/demo), else ""."""
+    import json
+
+    try:
+        bag = json.loads((Path(directory) / "analysis.json").read_text()).get("bag")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    return f"; it holds an analysis's output (analysis.json) of the bag {bag}: give that" if bag else ""
 
 
 def _bags_inside(directory: Path) -> str:
