@@ -38,3 +38,19 @@ def test_held_back_warnings_are_said_at_a_diagnostics_period_and_topics_have_the
                              "the last: airspeed -1.5 rejected"]
     assert log.due(11.0) == []  # said once
     assert log.rejected("airspeed_cmd", "airspeed 99 rejected", 10.6) is None  # within 0.2 s of that summary line
+
+
+def test_the_stop_line_counts_every_tick_not_only_the_jitter_sample() -> None:
+    """A real-time node's stop line capped `ticks` at 500 000 (the length of the deque its jitter is taken from):
+    a 20-minute run reported 500000. run_stats takes the count apart from the sample."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from panel_rig.ros.diagnostics import run_stats
+
+    sample: deque[float] = deque(maxlen=3)
+    for _ in range(5):
+        sample.append(0.002)
+    rig = SimpleNamespace(time_s=1.0, overrun_count=0)
+    assert run_stats(rig, 1.0, sample, 0.002, ticks=5)["ticks"] == 5
+    assert run_stats(rig, 1.0, sample, 0.002)["ticks"] == 3

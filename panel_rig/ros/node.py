@@ -175,7 +175,8 @@ class RigNode(Node):
         self._sim_anchor = self.rig.time_s
         self._last_tick: float | None = None
         self._grid = PublishGrid(self.rig.time_s, self._publish_period_s)  # real time: the readings' sample times
-        self.tick_intervals_s: deque[float] = deque(maxlen=500_000)
+        self.tick_intervals_s: deque[float] = deque(maxlen=500_000)  # the last ones: the jitter's sample
+        self.tick_count = 0  # every real-time tick interval (the deque keeps the last 500 000: 17 min at 500 Hz)
         self._window_intervals: list[float] = []
         self._diag_wall = self._wall0
         self._diag_sim = self.rig.time_s
@@ -491,6 +492,7 @@ class RigNode(Node):
         if self._last_tick is not None:
             interval = now - self._last_tick
             self.tick_intervals_s.append(interval)
+            self.tick_count += 1
             self._window_intervals.append(interval)
         self._last_tick = now
         target = self._sim_anchor + (now - self._wall_anchor)
@@ -541,7 +543,8 @@ class RigNode(Node):
 
     def stats(self) -> dict[str, float]:
         """Real-time factor since start, overruns, tick jitter (p99 of |interval - period|, ms)."""
-        return run_stats(self.rig, time.monotonic() - self._wall0, self.tick_intervals_s, self._publish_period_s)
+        return run_stats(self.rig, time.monotonic() - self._wall0, self.tick_intervals_s, self._publish_period_s,
+                         self.tick_count)
 
     def publish_diagnostics(self) -> None:
         """State, real-time factor (last window), overruns, rejected commands, last rejection."""
