@@ -311,6 +311,15 @@ def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -
         ctl.wait(10)
         client.wait(lambda: any("control watchdog" in m.msg for m in client.got["rosout"]), 10.0, "the watchdog")
         client.wait(lambda: client.diag()["control_state"] == "timed_out", 5.0, "control state timed out")
+        # a stale command is refused with the rig's times and the stamp as it was sent (the rig's seconds alone did
+        # not match anything the controller knew)
+        stale = WrenchStamped()
+        stale.header.stamp = client.got["tip"][-1].header.stamp
+        stale.header.stamp.sec -= 1
+        client.control_pub.publish(stale)
+        sent = f"header.stamp was {stale.header.stamp.sec}.{stale.header.stamp.nanosec:09d} s"
+        client.wait(lambda: any(sent in m.msg for m in client.got["rosout"]), 10.0, "the stale command's warning")
+        assert any("ms old" in m.msg and sent in m.msg for m in client.got["rosout"])
     finally:
         _stop(ctl)
         node_out = _stop(node)

@@ -409,7 +409,10 @@ class RigNode(Node):
             except Exception as exc:  # noqa: BLE001
                 self.get_logger().error(f"rerun control failed: {exc}", throttle_duration_sec=5.0)
         if not result.accepted:
-            self._warn_rejected("control/force_cmd", f"control/force_cmd {force!r} rejected: {result.reason}")
+            # the reason's times are the rig's (simulated s); the stamp as the controller sent it, when it differs
+            sent = (f" (times in the rig's seconds; header.stamp was {msg.header.stamp.sec}."
+                    f"{msg.header.stamp.nanosec:09d} s)" if self.publication.stamp_offset_ns else "")
+            self._warn_rejected("control/force_cmd", f"control/force_cmd {force!r} rejected: {result.reason}{sent}")
 
     def lockstep_wait(self, executor: SingleThreadedExecutor) -> None:
         """Fast mode with a controller attached: serve callbacks until the reading just published is answered (a
