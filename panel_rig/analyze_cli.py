@@ -188,6 +188,7 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     (flutter monitor views). The blueprint holds only views with data: control views when the bag has control
     commands, the flutter views when the replay identified a point, the analysis log when there are plateaus, the
     modal and panel-shape views when the bag has modal states and shapes."""
+    from panel_rig.analysis.flutter_test import margin_points
     from panel_rig.viz import RerunLogger
 
     n_modes = rec.q.shape[1]  # 0: the bag has no modal states (a flutter test's), no modal view
@@ -197,7 +198,7 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     decisions = _replay_decisions(ft_points, rec.parameters)
     views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (
         ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
-        ("flutter_zw",) if any(p.first is not None and p.flutter is not None for p in ft_points) else ()) + (
+        ("flutter_zw",) if margin_points(ft_points)[0].size else ()) + (
         ("analysis",) if result.get("plateaus") else ())
     logger = RerunLogger(n_modes, mode="save", target=str(path), recording_name=rec.bag_dir.name, views=views,
                          shape=bool(rec.shapes))

@@ -230,7 +230,7 @@ def test_the_tip_plot_is_twice_as_tall_as_each_other_plot(tmp_path: Path) -> Non
         logger.flush_blocks()
     logger.close()
     layouts = _left_column_shares(path)
-    assert sorted(len(shares) for shares in layouts) == [3, 5]  # the file's blueprints come in no fixed order
+    assert sorted(len(shares) for shares in layouts) == [4, 6]  # the file's blueprints come in no fixed order
     for shares in layouts:
         assert shares.pop("Tip deflection w/L") == 2.0
         assert set(shares.values()) == {1.0}, shares
@@ -238,8 +238,9 @@ def test_the_tip_plot_is_twice_as_tall_as_each_other_plot(tmp_path: Path) -> Non
 
 def test_operator_commands_are_markers_beside_what_they_set(tmp_path: Path) -> None:
     """A bag's replay draws the held shaker force only (the sine generator's output is not recorded): a shaker tap
-    showed nowhere. The accepted set-point, sine amplitude and held-force commands are markers in the airspeed and
-    shaker view, live and replayed; a refused command is not drawn."""
+    showed nowhere. The accepted set-point, sine amplitude and held-force commands are markers in the airspeed's
+    and the shaker's views, live and replayed; a refused command is not drawn. The two views are apart: on one y
+    axis a tap's 0.05 N/m markers lay flat under the 5-12 m/s airspeed."""
     path = tmp_path / "run.rrd"
     logger = RerunLogger(N_MODES, mode="save", target=str(path), views=())
     logger.log_reading(_reading(0))
@@ -255,9 +256,11 @@ def test_operator_commands_are_markers_beside_what_they_set(tmp_path: Path) -> N
                if c.is_static and "SeriesPoints:names" in c.to_record_batch().schema.names}
     assert {"/commands/airspeed_cmd", "/commands/shaker/amplitude_cmd", "/commands/shaker/force_cmd"} <= markers
     (blueprint,) = _blueprints(path)
-    view = next(v["ViewContents:query"] for _, v in blueprint
-                if "airspeed/**" in v.get("ViewContents:query", []))
-    assert {"commands/airspeed_cmd", "commands/shaker/amplitude_cmd", "commands/shaker/force_cmd"} <= set(view)
+    air = next(v["ViewContents:query"] for _, v in blueprint if "airspeed/**" in v.get("ViewContents:query", []))
+    shaker = next(v["ViewContents:query"] for _, v in blueprint if "shaker/**" in v.get("ViewContents:query", []))
+    assert "commands/airspeed_cmd" in air and not any(q.startswith(("shaker", "commands/shaker")) for q in air)
+    assert {"commands/shaker/amplitude_cmd", "commands/shaker/force_cmd"} <= set(shaker)
+    assert not any(q.startswith(("airspeed", "commands/airspeed")) for q in shaker)
 
 
 def _columns(path: Path) -> list[list[set[str]]]:
@@ -281,7 +284,7 @@ def test_the_flutter_monitor_has_a_column_of_its_own(tmp_path: Path) -> None:
     columns = _columns(with_monitor)[0]
     readings = next(c for c in columns if "Tip deflection w/L" in c)
     monitor = next(c for c in columns if any(name.startswith("Flutter margin") for name in c))
-    assert len(readings) == 3 and not any("lutter" in name or "ZW" in name for name in readings), readings
+    assert len(readings) == 4 and not any("lutter" in name or "ZW" in name for name in readings), readings
     assert len(monitor) == 4 and all("lutter" in name or "ZW" in name for name in monitor), monitor
     assert _left_column_shares(with_monitor)[0]["Tip deflection w/L"] == 2.0
     without = tmp_path / "run.rrd"

@@ -232,7 +232,7 @@ def _time_axes(path: Path) -> dict[str, bool]:
     return {name: entity in whole for entity, name in names.items()}
 
 
-READINGS_VIEWS = ("Tip deflection w/L", "Modal coordinates q1..q3", "Airspeed (m/s) & shaker (N/m)")
+READINGS_VIEWS = ("Tip deflection w/L", "Modal coordinates q1..q3", "Airspeed (m/s)", "Shaker force (N/m)")
 MONITOR_VIEWS = ("Flutter monitor", "Flutter margin", "Flutter mode: damping ratio x 1000 (95 %)")
 
 
@@ -245,8 +245,8 @@ def test_a_saved_file_shows_the_whole_test_and_a_live_stream_follows_the_cursor(
 
     saved = _time_axes(monitor_rrd[0])
     assert sorted(saved) == sorted([*READINGS_VIEWS, *(n for n in saved if n.startswith(MONITOR_VIEWS))])
-    assert len(saved) == 6 and all(saved.values()), saved  # U_f, margin, damping (no ZW view asked for)
+    assert len(saved) == 7 and all(saved.values()), saved  # U_f, margin, damping (no ZW view asked for)
     blueprint(3, ("flutter", "flutter_uf", "control")).save("panel_rig", tmp_path / "live.rbl")
     live = _time_axes(tmp_path / "live.rbl")
-    assert len(live) == 8, live  # the readings' three, the control's two, the monitor's three
+    assert len(live) == 9, live  # the readings' four, the control's two, the monitor's three
     assert {n for n, w in live.items() if w} == {n for n in live if n.startswith(MONITOR_VIEWS)}

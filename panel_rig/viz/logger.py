@@ -38,6 +38,8 @@ COMMAND_MARKERS = {
     "commands/shaker/amplitude_cmd": ("shaker sine amplitude N/m", [255, 127, 14]),
     "commands/shaker/force_cmd": ("shaker held force N/m", [140, 86, 75]),
 }
+AIRSPEED_MARKERS = [k for k in COMMAND_MARKERS if not k.startswith("commands/shaker/")]
+SHAKER_MARKERS = [k for k in COMMAND_MARKERS if k.startswith("commands/shaker/")]
 # the flutter monitor: predicted U_f (and its interval, m/s), the margin (unitless: its own view) and the
 # identified damping (x 1000, 95 % interval) vs time, one sample per test point; damping vs airspeed (2-D)
 FLUTTER_UF = "flutter/predicted_uf_mps"
@@ -113,10 +115,11 @@ def blueprint(n_modes: int, views: Collection[str] = OPTIONAL_VIEWS, *, whole_ru
         rrb.TimeSeriesView(origin="tip", name="Tip deflection w/L", axis_x=readings_axis),
         *([rrb.TimeSeriesView(origin="modal", name=f"Modal coordinates q1..q{n_modes}", axis_x=readings_axis)]
           if n_modes else []),
-        rrb.TimeSeriesView(
-            origin="/", contents=["airspeed/**", "shaker/**", *COMMAND_MARKERS],
-            name="Airspeed (m/s) & shaker (N/m)", axis_x=readings_axis,
-        ),
+        # airspeed and shaker apart: on one y axis the taps' 0.05 N/m markers lay flat under the 5-12 m/s airspeed
+        rrb.TimeSeriesView(origin="/", contents=["airspeed/**", *AIRSPEED_MARKERS], name="Airspeed (m/s)",
+                           axis_x=readings_axis),
+        rrb.TimeSeriesView(origin="/", contents=["shaker/**", *SHAKER_MARKERS], name="Shaker force (N/m)",
+                           axis_x=readings_axis),
     ]
     if "control" in views:
         series += [rrb.TimeSeriesView(origin="/", contents=[CONTROL_CMD], name="Control command (N/m)",
