@@ -19,19 +19,22 @@ from panel_rig.model.stepper import Stepper
 
 def test_lco_sweep_marks_the_diverged_airspeeds(tmp_path, monkeypatch):
     """Fig. 8 of `lco-sweep --plot` and of the paper report: a diverged run has no metrics (NaN) and its line
-    point vanished without a word; it is a cross on the axis now, for both."""
+    point vanished without a word; it is a cross on the axis now, for both. A run past |w/L| = 1 is circled."""
     figures = []
     real_save = plots._save
     monkeypatch.setattr(plots, "_save", lambda fig, path: (figures.append([ln for ax in fig.axes for ln in ax.lines]),
                                                            real_save(fig, path))[1])
     nan = math.nan
     res = [LCOResult(10.0, 0.1, 0.15, 22.0, 3.0, False), LCOResult(12.0, nan, nan, nan, None, True, 4.0),
-           LCOResult(14.0, 0.3, 0.42, 20.0, 2.0, False), LCOResult(16.0, nan, nan, nan, None, True, 1.0)]
+           LCOResult(14.0, 0.8, 1.2, 20.0, 2.0, False), LCOResult(16.0, nan, nan, nan, None, True, 1.0)]
     path = plots.plot_lco_sweep(tmp_path / "fig8.png", np.array([10.0, 12.0, 14.0, 16.0]), res, "Fig. 8")
     assert path.stat().st_size > 0
     crosses = [ln for ln in figures[0] if ln.get_marker() == "x"]  # on both panels, (a) and (b)
     assert len(crosses) == 2 and all(list(c.get_xdata()) == [12.0, 16.0] for c in crosses)
     assert "diverged" in crosses[0].get_label()
+    # a cycle past the panel's length (peak |w/L| 1.2 at 14 m/s) was an ordinary LCO point: circled on both panels
+    past = [ln for ln in figures[0] if "past the panel's length" in ln.get_label()]
+    assert len(past) == 2 and all(list(c.get_xdata()) == [14.0] for c in past)
     # a frequency only where there is an LCO: the decaying run's (10 m/s, RMS 0) drew a false step into the LCO's
     quiet = [LCOResult(10.0, 0.0, 0.0, 22.9, None, False), LCOResult(11.0, 0.3, 0.4, 17.8, 2.0, False)]
     plots.plot_lco_sweep(tmp_path / "fig8b.png", np.array([10.0, 11.0]), quiet, "Fig. 8")

@@ -57,13 +57,18 @@ def plot_flutter_roots(curves: dict[str, tuple[np.ndarray, list[np.ndarray]]], p
 
 def plot_series(path: str | Path, x: np.ndarray, ys: Sequence[tuple[np.ndarray, str]], xlabel: str,
                 ylabel: str, title: str = "", paper: Sequence[tuple[np.ndarray, np.ndarray, str]] = (),
-                marks: tuple[np.ndarray, str] | None = None, marks_at: float = 0.03) -> Path:
+                marks: tuple[np.ndarray, str] | None = None, marks_at: float = 0.03,
+                bound: tuple[float, str] | None = None) -> Path:
     """Generic line plot with optional paper points; ``marks`` (x values, label): crosses at the height
     ``marks_at`` (a fraction of the axes, bottom edge by default) for points without a value (e.g. the diverged
-    airspeeds of a sweep), so the axis spans them too."""
+    airspeeds of a sweep), so the axis spans them too; ``bound`` (value, label): dotted lines at +-value (e.g. the
+    panel's length, |w/L| = 1)."""
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for y, label in ys:
         ax.plot(x, y, label=label, lw=1.2)
+    if bound is not None:
+        for sign in (1, -1):
+            ax.axhline(sign * bound[0], color="0.3", ls=":", lw=1, label=bound[1] if sign > 0 else None)
     for px, py, label in paper:
         ax.plot(px, py, "ks", mfc="none", label=label)
     if marks is not None and len(marks[0]):
@@ -93,6 +98,11 @@ def plot_lco_sweep(path: str | Path, airspeed_mps: np.ndarray, results: Sequence
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     ax1.plot(u, rms, "o-", ms=3.5, lw=1.2, label="RMS tip w/L")
     ax2.plot(u, freq, "o-", ms=3.5, lw=1.2, color="C1", label="LCO frequency")
+    past = np.array([not r.diverged and r.peak_tip_w_over_L > 1.0 for r in results], dtype=bool)
+    if past.any():  # the cubic model's cycles past the panel's length: computed, but not a panel's numbers
+        for ax, y in ((ax1, rms), (ax2, freq)):
+            ax.plot(u[past], y[past], "o", ms=8, mfc="none", color="C3",
+                    label="peak |w/L| > 1: past the panel's length, not physical")
     for ax in (ax1, ax2):
         if gone.size:
             ax.plot(gone, np.full(gone.size, 0.97), "x", color="C3", label="diverged (|tip w/L| over the bound)",

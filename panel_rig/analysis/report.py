@@ -115,7 +115,7 @@ def build_report(cfg: PanelConfig, out: Path, log: Callable[[str], None] = lambd
         "tolerance 25 % RMS, 5 % frequency", exact="n/a (the exact structure has no stiffness-only form)")
     t1 = np.arange(tip1.size) * dt
     plots.plot_series(out / "fig4a_lco_time.png", t1, [(tip1, "full, implicit")], "time, s", "tip w/L",
-                      f"Fig. 4(a): U = {u_c:.2f} m/s")
+                      f"Fig. 4(a): U = {u_c:.2f} m/s", bound=(1.0, "|w/L| = 1: the panel's length"))
     plots.plot_spectrum(out / "fig4b_lco_fft.png", dt, [(tip1[-int(10 / dt):], "full, implicit"),
                                                         (tip1p[-int(10 / dt):], "full, paper scheme"),
                                                         (tip3[-int(10 / dt):], "stiffness only")],
