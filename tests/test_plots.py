@@ -226,6 +226,12 @@ def test_lco_vs_airspeed_of_a_subcritical_run_says_why_its_frequency_panel_is_em
     plots.plot_lco_vs_airspeed(tmp_path / "b.png", [*quiet, {**quiet[0], "airspeed_mps": 11.0, "status": "lco"}])
     assert not figures[1].axes[1].texts and figures[1].axes[1].lines
     assert figures[1].axes[0].get_title() == "(a) LCO amplitude"
+    # a wind-off plateau (the demo's first) stretched the airspeed axis down to 0 m/s: left out, and said so
+    off = {**quiet[0], "airspeed_mps": 0.0, "status": "quiet"}
+    plots.plot_lco_vs_airspeed(tmp_path / "c.png", [off, *quiet])
+    ax1 = figures[2].axes[0]
+    assert min(x for ln in ax1.lines for x in ln.get_xdata()) == 5.2 and ax1.get_xlim()[0] > 4.0
+    assert any("1 wind-off plateau(s)" in t.get_text() for t in ax1.texts)
 
 
 def test_time_history_status_labels_sit_below_the_airspeed_curve(tmp_path, monkeypatch):
