@@ -286,6 +286,36 @@ def test_controller_follows_a_restarted_rig_and_takes_live_parameters(ros_env: d
         rclpy.shutdown(context=ctx)
 
 
+def test_an_uncapped_fast_rig_engages_the_lock_step_with_a_command_it_refused_as_too_old(
+        ros_env: dict[str, str]) -> None:
+    """Fast mode without a cap runs free at hundreds of times real time: a controller's answer arrived 0.1 s of
+    simulated time or more after its reading and was refused as too old, every one of them, so the lock-step (which
+    an accepted command engaged) never engaged and the loop never closed (a review's rig aborted at flutter with every
+    command refused). Any command from a controller now engages it: the next answers are taken."""
+    client = Client(int(ros_env["ROS_DOMAIN_ID"]))
+    node = subprocess.Popen(
+        [PYTHON, "-m", "panel_rig.ros.rig_node", "--fast", "--ros-args", "-r", "__ns:=/rig",
+         "-p", "fast_max_realtime_factor:=0.0", "-p", f"control.fast_delay_s:={FAST_DELAY_S}",
+         "-p", "diagnostics_rate_hz:=5.0", "-p", "control.timeout_s:=0.02"],
+        env=ros_env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ctl = subprocess.Popen([PYTHON, "-m", "panel_rig.ros.controller", "--ros-args", "-r", "__ns:=/rig",
+                            "-p", "gain_nspm2:=0.4"], env=ros_env, cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True)
+    node_out = ""
+    try:
+        client.wait(lambda: client.diag().get("control_lockstep") == "True"
+                    and int(client.diag().get("control_commands", 0)) > 100, 60.0, "the lock-step and taken commands")
+        engaged_s = float(client.diag()["sim_time_s"])
+        client.wait(lambda: client.lockstep_window(engaged_s) is not None, 20.0, "a window wholly in lock-step")
+        assert float(client.lockstep_window(engaged_s)["control_latency_p99_ms"]) == pytest.approx(
+            1e3 * FAST_DELAY_S, abs=1e-3)
+    finally:
+        _stop(ctl)
+        node_out = _stop(node)
+        client.close()
+    assert node.returncode == 0, node_out[-3000:]
+
+
 def test_real_time_ages_on_the_ros_clock_and_watchdog(ros_env: dict[str, str]) -> None:
     """Real time: commands echo ROS-clock stamps, the node measures their ages on the ROS clock (reported, not
     asserted against a target: the machine's load decides them; benchmarks/control_latency.py measures them), and

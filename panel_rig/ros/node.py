@@ -382,7 +382,7 @@ class RigNode(Node):
         of the tip reading it answers)."""
         self._control_topic = self._topic_name("control/force_cmd")
         self._fast_delay_s = float(self.get_parameter("control.fast_delay_s").value)
-        self._lockstep = False  # fast mode: engaged by each accepted command, released when the controller is silent
+        self._lockstep = False  # fast mode: engaged by each control command, released when the controller is silent
         self._answered_ns = -1
         self._control_sub = self.create_subscription(WrenchStamped, "control/force_cmd", self._on_control,
                                                      COMMAND_QOS)
@@ -399,7 +399,10 @@ class RigNode(Node):
             arrival_s = (self.get_clock().now().nanoseconds - self.publication.stamp_offset_ns) * 1e-9
         force = msg.wrench.force.z
         result = self.rig.command_control(force, stamp_s, arrival_s)
-        if result.accepted and self.fast:
+        if self.fast and stamp_ns <= self.publication.stamp_ns(self.rig.time_s):
+            # a controller answered a reading: march in lock-step with it, even when this answer was refused as too
+            # old (uncapped, the rig ran free hundreds of times faster than real time and refused every answer, so
+            # a lock-step engaged only by an accepted one never came); a stamp from the future answers nothing
             self._lockstep = True
             self._answered_ns = max(self._answered_ns, stamp_ns)
         self._record_command(self._control_topic, msg, result.accepted)
