@@ -103,7 +103,7 @@ class FlutterTestReplay(NamedTuple):
 def control_timeout_s(parameters: dict[str, Any]) -> float:
     """The run's control watchdog (s): its recorded ``control.timeout_s``, or the rig's default for a run that did
     not record one."""
-    from panel_rig.analysis.bag_analysis import CONTROL_TIMEOUT_S
+    from panel_rig.topics import CONTROL_TIMEOUT_S
 
     timeout = parameters.get("control.timeout_s")
     return float(timeout) if isinstance(timeout, (int, float)) and timeout > 0 else CONTROL_TIMEOUT_S
@@ -189,11 +189,12 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     commands, the flutter views when the replay identified a point, the analysis log when there are plateaus, the
     modal and panel-shape views when the bag has modal states and shapes."""
     from panel_rig.analysis.flutter_test import margin_points
+    from panel_rig.topics import CONTROL_TOPIC
     from panel_rig.viz import RerunLogger
 
     n_modes = rec.q.shape[1]  # 0: the bag has no modal states (a flutter test's), no modal view
     result = result or {}
-    control = rec.commands.get("control/force_cmd", [])
+    control = rec.commands.get(CONTROL_TOPIC, [])
     replayed = _replay_times(rec, result, ft_points)
     decisions = _replay_decisions(ft_points, rec.parameters)
     views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (

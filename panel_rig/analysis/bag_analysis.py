@@ -69,11 +69,10 @@ import numpy as np
 
 from panel_rig.analysis.decay import tap_decay
 from panel_rig.analysis.signals import dominant_frequency_hz, resolved_frequency_hz, rms, window_std
+from panel_rig.topics import CONTROL_TIMEOUT_S, CONTROL_TOPIC
 
 MIN_ENVELOPE_WINDOWS = 8  # envelope windows a free response is cut into at least (when each is >= envelope_window_s)
 SHAKER_TOPICS = ("shaker/force_cmd", "shaker/amplitude_cmd", "shaker/frequency_cmd")
-CONTROL_TOPIC = "control/force_cmd"
-CONTROL_TIMEOUT_S = 0.1  # the rig's watchdog default (control.timeout_s), for a run that did not record its own
 Commands = dict[str, list[tuple[float, float]]]  # topic suffix -> [(t_s, value)]
 
 

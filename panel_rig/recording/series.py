@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from panel_rig.analysis.bag_analysis import CONTROL_TOPIC, SHAKER_TOPICS, mean_dt
+from panel_rig.analysis.bag_analysis import SHAKER_TOPICS, mean_dt
 from panel_rig.config import PanelConfig
 from panel_rig.recording.errors import RecordingError
 from panel_rig.recording.fast_cdr import joint_positions, point_z, vector_x, wrench_force_z
@@ -30,8 +30,8 @@ from panel_rig.recording.reader import (
     verify_bag,
 )
 from panel_rig.recording.writer import PARAMETERS_KEY, PARAMETERS_RECORD
+from panel_rig.topics import CONTROL_TOPIC, REJECTED_SUFFIX, RIG_STATUS_NAME
 from panel_rig.topics import FLUTTER_MONITOR_TOPIC as MONITOR_TOPIC
-from panel_rig.topics import REJECTED_SUFFIX, RIG_STATUS_NAME
 
 
 @dataclass

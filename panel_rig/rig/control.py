@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from panel_rig.topics import CONTROL_TIMEOUT_S
+
 IDLE, ACTIVE, TIMED_OUT = "idle", "active", "timed_out"
 LOG_INTERVAL_S = 1.0  # at most one watchdog trip and its resume logged per second of simulated time
 
@@ -33,7 +35,7 @@ class ControlSettings:
     bandwidth_hz: float = 100.0  # first-order lag: F' = 2 pi bw (F_target - F)
     max_force_npm: float = 2.0  # saturation +- (commands beyond it are rejected), N/m
     max_rate_npmps: float = 2000.0  # |dF/dt| limit, N/m per s
-    timeout_s: float = 0.1  # watchdog: no command for longer -> target 0
+    timeout_s: float = CONTROL_TIMEOUT_S  # watchdog: no command for longer -> target 0
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -25,6 +25,7 @@ from panel_rig.rig.safety import (
 from panel_rig.rig.sensor import TipSensor
 from panel_rig.rig.shaker import Shaker
 from panel_rig.rig.turbulence import Turbulence
+from panel_rig.topics import CONTROL_TOPIC
 
 log = logging.getLogger(__name__)
 
@@ -375,7 +376,7 @@ class Rig:
             return check_control_force(force_npm, self.control.settings) or check_stamp(
                 stamp_s, arrival, self.control.settings)
 
-        return self._command("control/force_cmd", force_npm, check,
+        return self._command(CONTROL_TOPIC, force_npm, check,
                              lambda: self.control.command(float(force_npm), float(stamp_s), arrival),
                              zero_when_aborted=False)
 

@@ -39,6 +39,7 @@ from panel_rig.argparsing import OneLineParser
 from panel_rig.rig.control import ControlSettings
 from panel_rig.ros.params import as_declared, undeclared_problem
 from panel_rig.ros.session import ros_arguments_problem, ros_session
+from panel_rig.topics import CONTROL_TOPIC
 
 NODE_NAME = "panel_rig_controller"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -110,7 +111,7 @@ class Controller(Node):
         self.discrete = DiscreteLaw(self.law)
         self.max_force = float(self.get_parameter("max_force_npm").value)
         self.enabled = bool(self.get_parameter("enabled").value)
-        self.pub = self.create_publisher(WrenchStamped, "control/force_cmd", COMMAND_QOS)
+        self.pub = self.create_publisher(WrenchStamped, CONTROL_TOPIC, COMMAND_QOS)
         self.create_subscription(PointStamped, "tip_displacement", self._on_tip, qos_profile_sensor_data)
         self.create_subscription(Vector3Stamped, "airspeed", self._on_airspeed, qos_profile_sensor_data)
         self._msg = WrenchStamped()

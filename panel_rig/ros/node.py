@@ -53,7 +53,7 @@ from panel_rig.ros.params import (
 )
 from panel_rig.ros.publishing import SHAPE_POINTS, ReadingPublisher, ReadingTopics, Recording
 from panel_rig.ros.rejections import RejectionLog
-from panel_rig.topics import REJECTED_SUFFIX
+from panel_rig.topics import CONTROL_TOPIC, REJECTED_SUFFIX
 
 NODE_NAME = "panel_rig"
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -380,11 +380,11 @@ class RigNode(Node):
     def _init_control(self) -> None:
         """``control/force_cmd`` (geometry_msgs/WrenchStamped: ``wrench.force.z`` N/m, ``header.stamp`` = the stamp
         of the tip reading it answers)."""
-        self._control_topic = self._topic_name("control/force_cmd")
+        self._control_topic = self._topic_name(CONTROL_TOPIC)
         self._fast_delay_s = float(self.get_parameter("control.fast_delay_s").value)
         self._lockstep = False  # fast mode: engaged by each control command, released when the controller is silent
         self._answered_ns = -1
-        self._control_sub = self.create_subscription(WrenchStamped, "control/force_cmd", self._on_control,
+        self._control_sub = self.create_subscription(WrenchStamped, CONTROL_TOPIC, self._on_control,
                                                      COMMAND_QOS)
 
     def _on_control(self, msg: WrenchStamped) -> None:
@@ -415,7 +415,7 @@ class RigNode(Node):
             # the reason's times are the rig's (simulated s); the stamp as the controller sent it, when it differs
             sent = (f" (times in the rig's seconds; header.stamp was {msg.header.stamp.sec}."
                     f"{msg.header.stamp.nanosec:09d} s)" if self.publication.stamp_offset_ns else "")
-            self._warn_rejected("control/force_cmd", f"control/force_cmd {force!r} rejected: {result.reason}{sent}")
+            self._warn_rejected(CONTROL_TOPIC, f"{CONTROL_TOPIC} {force!r} rejected: {result.reason}{sent}")
 
     def lockstep_wait(self, executor: SingleThreadedExecutor) -> None:
         """Fast mode with a controller attached: serve callbacks until the reading just published is answered (a

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from panel_rig.paths import prepare_rrd_path
+from panel_rig.topics import CONTROL_TOPIC
 from panel_rig.viz.sender import QueuedStream, one_job
 
 if TYPE_CHECKING:
@@ -389,7 +390,7 @@ class RerunLogger:
     @one_job
     def on_command(self, name: str, value: float, accepted: bool, time_s: float) -> None:
         """Accepted commands become scalars under `commands/<name>`."""
-        if self._rec is None or not accepted or name == "control/force_cmd":  # 500 Hz: batched by log_control
+        if self._rec is None or not accepted or name == CONTROL_TOPIC:  # 500 Hz: batched by log_control
             return
         self._rec.set_time(TIMELINE, duration=float(time_s))
         self._rec.log(f"commands/{name}", self._rr.Scalars(float(value)))
