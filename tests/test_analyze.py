@@ -1079,15 +1079,19 @@ def test_control_spans_end_a_watchdog_timeout_after_the_last_command() -> None:
     assert control_spans({}, 0.1) == []
 
 
-def test_a_plateau_is_cut_where_a_controller_closes_the_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("period_ms", [5, 125], ids=["200 Hz", "8 Hz, slower than the watchdog"])
+def test_a_plateau_is_cut_where_a_controller_closes_the_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                             period_ms: int) -> None:
     """A controller switched on in the middle of the 11 m/s LCO plateau (t = 28 s) and left on: the plateau is cut
     there, the parts after it are 'closed', and the open loop's onset comes from the open plateaus alone (as without
     a controller), the closed loop's from the closed ones, on a line of its own. Before, the controller's commands
-    were not read from the bag and every plateau spoke of the open loop."""
+    were not read from the bag and every plateau spoke of the open loop. A controller slower than the watchdog
+    (8 Hz, 0.1 s) trips it at every gap: the loop opens for 25 ms each time, which does not cut the plateau (it cut
+    it into pieces too short to be plateaus, and the closed loop's plateaus vanished)."""
     from geometry_msgs.msg import WrenchStamped
 
     def control(writer: BagWriter) -> None:
-        for ns in range(28_000_000_000, 40_000_000_000, 5_000_000):  # 200 Hz
+        for ns in range(28_000_000_000, 40_000_000_000, period_ms * 1_000_000):
             msg = WrenchStamped()
             _stamp(msg, ns)
             msg.wrench.force.z = 0.01

@@ -52,7 +52,8 @@ Criteria (defaults in :class:`Criteria`, all reported in the JSON output):
   ``decaying`` (U > 0.5 m/s; a ``stationary`` or ``quiet`` plateau has no measured rate), the rate is also interpolated linearly
   between the two bracketing plateaus (``interpolated_mps``).
 * **Closed loop**: while a controller commands the panel (``control/force_cmd`` commands no more than the rig's
-  watchdog timeout apart) the panel is another system. A plateau is cut where the loop closes or opens, each part is
+  watchdog timeout apart) the panel is another system. A plateau is cut where the loop closes or opens (for at
+  least ``min_duration_s``: a controller slower than the watchdog opens it at every gap), each part is
   ``open`` or ``closed`` (``loop``), and the onset is estimated over each loop's plateaus alone: ``onset`` of the
   open loop, ``closed_loop_onset`` of the closed one (None without closed-loop plateaus).
 """
@@ -193,20 +194,16 @@ def cut_at_setpoint_changes(t_s: np.ndarray, airspeed_mps: np.ndarray, airspeed_
 def control_spans(commands: Commands, timeout_s: float = CONTROL_TIMEOUT_S) -> list[tuple[float, float]]:
     """(start, end) times (s) in which the loop was closed: from a control command until the next one, or until the
     watchdog's ``timeout_s`` after the last of a run of them (then the rig zeroes the control force)."""
-    times = sorted(t for t, _ in commands.get(CONTROL_TOPIC, []))
-    spans: list[tuple[float, float]] = []
-    for t in times:
-        if spans and t - spans[-1][1] <= timeout_s:
-            spans[-1] = (spans[-1][0], t)
-        else:
-            spans.append((t, t))
-    return [(a, b + timeout_s) for a, b in spans]
+    return _bridged([(t, t + timeout_s) for t in sorted(t for t, _ in commands.get(CONTROL_TOPIC, []))], 0.0)
 
 
 def cut_at_loop_switches(t_s: np.ndarray, ranges: list[tuple[int, int]], spans: list[tuple[float, float]],
                          crit: Criteria = Criteria()) -> list[tuple[int, int, bool]]:
     """Split each plateau [i0, i1) where the loop closes or opens (``spans``: :func:`control_spans`); the parts of
-    at least ``min_duration_s`` as (i0, i1, closed)."""
+    at least ``min_duration_s`` as (i0, i1, closed). The loop opening for less than ``min_duration_s`` does not cut
+    (a controller slower than the watchdog trips it at every gap: an 8 Hz one opened the loop for 25 ms in each
+    0.125 s, and the cuts left no part long enough to be a plateau)."""
+    spans = _bridged(spans, crit.min_duration_s)
     out = []
     edges = np.array(sorted(x for span in spans for x in span))
     for i0, i1 in ranges:
@@ -215,6 +212,17 @@ def cut_at_loop_switches(t_s: np.ndarray, ranges: list[tuple[int, int]], spans: 
             if b > a and t_s[b - 1] - t_s[a] >= crit.min_duration_s:
                 mid = 0.5 * (t_s[a] + t_s[b - 1])
                 out.append((a, b, any(lo <= mid <= hi for lo, hi in spans)))
+    return out
+
+
+def _bridged(spans: list[tuple[float, float]], gap_s: float) -> list[tuple[float, float]]:
+    """``spans`` (ascending starts) joined where they overlap or the gap between them is at most ``gap_s``."""
+    out: list[tuple[float, float]] = []
+    for lo, hi in spans:
+        if out and lo - out[-1][1] <= gap_s:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
     return out
 
 
