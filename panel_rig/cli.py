@@ -686,6 +686,8 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
             raise UsageError(f"--start-mps must be in (0, {MAX_AIRSPEED_MPS:g}] m/s, got {args.start_mps:.10g}")
     if args.max_points is not None and args.max_points < 1:
         raise UsageError(f"--max-points must be >= 1, got {args.max_points}")
+    if args.repeats is not None and args.repeats < 0:
+        raise UsageError(f"--repeats must be >= 0, got {args.repeats}")
     if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
         raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
     if args.domain_id is not None and args.in_process:  # accepted and silently meaningless before
@@ -706,7 +708,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
                                params={"set": " ".join(args.set or ()), "params": args.params or ""},
                                dwell_s=args.dwell, settle_s=args.settle, in_process=args.in_process,
                                domain_id=args.domain_id, max_points=args.max_points,
-                               progress=_note)
+                               progress=_note, repeats=args.repeats)
     except StoppedRun as stopped:  # Ctrl-C, SIGTERM, a failed recording or a lost node after points:
         # the points identified so far, reported as a finished test's (a signal's line names the test itself)
         print(f"panel-rig flutter-test: {stopped.message}" if isinstance(stopped, Aborted) else stopped.message,
@@ -919,6 +921,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--settle", type=float, metavar="S",
                    help="simulated seconds of run-in dropped after each airspeed step (default 5)")
     p.add_argument("--max-points", type=int, metavar="N", help="stop after N test points (default 12)")
+    p.add_argument("--repeats", type=int, metavar="N",
+                   help="before a margin stop on an uncertain prediction (its 95 %% interval open or wider than 20 %%), "
+                        "take the same airspeed again up to N times (default 1; 0: stop at once)")
     p.add_argument("--in-process", action="store_true",
                    help="drive an in-process Rig instead of the live node (no ROS; the unit tests' path)")
     p.add_argument("--domain-id", type=int, metavar="ID",

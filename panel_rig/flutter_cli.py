@@ -149,17 +149,17 @@ def run_flutter_test(cfg: Any, variant: str = "full", margin: float = 0.1, start
                      params: dict[str, Any] | None = None, dwell_s: float | None = None,
                      settle_s: float | None = None, in_process: bool = False,
                      domain_id: int | None = None, max_points: int | None = None,
-                     progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                     progress: Callable[[str], None] | None = None, repeats: int | None = None) -> dict[str, Any]:
     """Run the procedure (live node by default, see the module docstring); returns the JSON payload.
     ``progress``: called with :func:`point_line` after each test point. Stopped by Ctrl-C or SIGTERM, it raises
     :class:`panel_rig.processes.Interrupted` with the payload of the points identified so far."""
     if in_process:
         return run_in_process(cfg, variant, margin, start_mps, bag_dir, plot, rerun, params, dwell_s, settle_s,
-                              max_points, progress)
+                              max_points, progress, repeats)
     from panel_rig.ros.flutter_live import run_live
 
     return run_live(cfg, variant, margin, start_mps, bag_dir, plot, rerun, dwell_s, settle_s, domain_id,
-                    max_points=max_points, progress=progress)
+                    max_points=max_points, progress=progress, repeats=repeats)
 
 
 def flutter_line(index: int, airspeed_mps: float) -> str:
@@ -191,7 +191,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
                    bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
                    params: dict[str, Any] | None = None, dwell_s: float | None = None,
                    settle_s: float | None = None, max_points: int | None = None,
-                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, repeats: int | None = None) -> dict[str, Any]:
     """The procedure on an in-process Rig; returns the JSON payload (see the CLI)."""
     from panel_rig.analysis.flutter_test import (
         FlutterTestResult,
@@ -214,7 +214,7 @@ def run_in_process(cfg: Any, variant: str = "full", margin: float = 0.1, start_m
     from panel_rig.ros.flutter_monitor import TOPIC, monitor_msg
 
     t0 = time.monotonic()
-    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points, repeats)
     problem = start_problem(settings, max_test_airspeed_mps(uf)) or noise_problem(cfg.sensor_tip_noise_m,
                                                                                    cfg.panel_length_m)
     if problem is not None:  # before the bag is made: nothing half-recorded is left behind

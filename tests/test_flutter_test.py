@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from panel_rig import flutter_cli
-from panel_rig.analysis.flutter_test import FlutterTestSettings, TestPoint, decide, tap_start
+from panel_rig.analysis.flutter_test import REPEAT, FlutterTestSettings, TestPoint, decide, tap_start, uncertain
 from panel_rig.analysis.identification import ModalEstimate
 from panel_rig.analysis.vg import vg_diagram
 from panel_rig.config import load_config
@@ -36,6 +36,31 @@ def test_decide_caps_the_next_airspeed_and_stops_inside_the_margin():
     low = FlutterTestSettings(start_mps=5.0, step_mps=0.5, min_damping=0.009)
     d = decide([_point(1.0), _point(4.0)], low)
     assert d.stop and "damping" in d.reason
+
+
+def test_a_margin_stop_on_an_uncertain_prediction_repeats_the_point_first():
+    """9 of 32 seeds stopped 7-34 % short of U_f on a margin stop from a prediction whose interval was wide (e.g.
+    [6.72 m/s, open] at 0.6 U_f on two points). Now such a stop takes the same airspeed again first (``repeats``
+    times, default once): an airspeed already cleared, never a higher one; a prediction with a tight interval
+    stops at once, as before, and so does the uncertain one once its repeats are used."""
+    from dataclasses import replace
+
+    s = FlutterTestSettings(start_mps=5.0, step_mps=2.0, margin=0.1, min_damping=0.0)
+    speeds = (5.0, 6.0, 7.0, 8.0, 9.2)
+    d = decide([_point(u) for u in speeds], s)
+    assert d.stop and d.reason.startswith("predicted margin") and not uncertain(d.prediction, s.wide_ci), d
+    noisy = [_point(u, se=3e-3) for u in speeds]
+    d = decide(noisy, s)
+    assert uncertain(d.prediction, s.wide_ci) and d.prediction.margin(9.2) < 0.1
+    assert d.next_airspeed_mps == 9.2 and d.reason.startswith(f"{REPEAT} the point: predicted margin"), d.reason
+    again = noisy + [_point(9.2, se=3e-3)]
+    d = decide(again, s)
+    assert d.stop and d.reason.startswith("predicted margin"), d.reason
+    assert decide(noisy, replace(s, repeats=0)).stop
+    assert decide(again, replace(s, repeats=2)).next_airspeed_mps == 9.2
+    assert decide(again, replace(s, max_points=6)).stop  # a repeat is a test point: the cap on points holds
+    # the repeated airspeed is a sample of the fit, not a point of its curve: 3 points at 2 airspeeds give no trend
+    assert decide([_point(5.0), _point(6.0), _point(6.0)], s).trend is None
 
 
 def test_a_point_without_a_flutter_mode_estimate_clears_nothing():
@@ -101,15 +126,18 @@ def paper_run():
 
 def test_procedure_on_the_rig_stops_short_and_predicts_the_flutter_speed(paper_run):
     """Paper configuration, default turbulence and sensor, full nonlinear variant, dwell 200 s per point: the
-    procedure never flutters, never exceeds (1 - M) x the prediction current at the time of each command, stays
-    below 0.95 U_f, and the prediction it stops on (from points <= 0.95 U_f) is within 3 % of the model's linear
-    U_f; the identified flutter-mode damping is within 20 % of the model V-g at 0.6-0.9 U_f."""
+    procedure never flutters, never climbs above (1 - M) x the prediction current at the time of each command (a
+    repeat takes an airspeed already measured again), stays below 0.95 U_f, and the prediction it stops on (from
+    points <= 0.95 U_f) is within 3 % of the model's linear U_f; the identified flutter-mode damping (the mean of a
+    repeated airspeed's points) is within 20 % of the model V-g at 0.6-0.9 U_f."""
     res, uf = paper_run
     assert not res.fluttered
     assert res.max_airspeed_mps < 0.95 * uf
     assert len(res.points) >= 4
-    for d, nxt in zip(res.decisions, res.points[1:]):
-        if d.prediction is not None:
+    for d, before, nxt in zip(res.decisions, res.points, res.points[1:]):
+        if d.reason.startswith(REPEAT):
+            assert nxt.airspeed_mps == before.airspeed_mps
+        elif d.prediction is not None:
             assert nxt.airspeed_mps <= (1 - 0.1) * d.prediction.speed_mps + 1e-9
     pred = res.final.prediction
     assert pred is not None and pred.speed_mps == pytest.approx(uf, rel=0.03)
@@ -117,13 +145,15 @@ def test_procedure_on_the_rig_stops_short_and_predicts_the_flutter_speed(paper_r
     from panel_rig.model.stepper import Stepper
 
     model = Stepper(load_config(), variant="full").model
-    u = np.array([p.airspeed_mps for p in res.points])
+    u = np.unique([p.airspeed_mps for p in res.points])
     vg = vg_diagram(model, u)
     mode = int(np.argmin(np.abs(vg.frequency_hz[0] - res.points[0].flutter.frequency_hz))) + 1
-    for k, p in enumerate(res.points):
-        if 0.6 * uf <= p.airspeed_mps <= 0.9 * uf:
-            assert p.flutter.damping_ratio == pytest.approx(vg.damping_ratio[k, mode - 1], rel=0.2)
-            assert p.flutter.frequency_hz == pytest.approx(vg.frequency_hz[k, mode - 1], rel=5e-3)
+    for k, uk in enumerate(u):  # a repeated airspeed's points by their mean (one dwell reads the V-g +- 10 %)
+        if 0.6 * uf <= uk <= 0.9 * uf:
+            at = [p.flutter for p in res.points if p.airspeed_mps == uk]
+            assert np.mean([e.damping_ratio for e in at]) == pytest.approx(vg.damping_ratio[k, mode - 1], rel=0.2)
+            for e in at:
+                assert e.frequency_hz == pytest.approx(vg.frequency_hz[k, mode - 1], rel=5e-3)
     d = res.as_dict()
     assert d["fluttered"] is False and d["test_points"][0]["damping_ci"][0] < d["test_points"][0]["damping_ratio"]
 
@@ -255,6 +285,29 @@ def test_monitor_identifies_a_dwell_of_exactly_the_minimum_length():
         sink.on_block(type("Block", (), {"time_s": t[block], "tip_w_m": 1e-6 * rng.standard_normal(block.size),
                                          "state": "running"})())
     assert len(published) == 1 and published[0][1].airspeed_mps == 5.0
+
+
+def test_the_monitor_takes_a_repeated_airspeed_as_a_point_and_skips_a_step_down():
+    """The flutter test repeats a point before an uncertain margin stop: the node's monitor ignored a command at the
+    last point's airspeed (it follows the ascent only) and the live test waited for a result that never came."""
+    from panel_rig.config import load_config
+    from panel_rig.model.aeroelastic import AeroelasticModel
+    from panel_rig.rig.flutter_run import MIN_DWELL_S, FlutterMonitorSink
+
+    cfg = load_config()
+    published = []
+    sink = FlutterMonitorSink(cfg, AeroelasticModel(cfg), lambda *a, **k: published.append(a), settle_s=1.0,
+                              dwell_s=MIN_DWELL_S)
+    rng = np.random.default_rng(0)
+    t0 = 0.0
+    for u in (5.0, 5.0, 4.0, 6.0):
+        sink.on_command("airspeed_cmd", u, True, t0)
+        t = t0 + np.arange(1, int(512 * (1.0 + MIN_DWELL_S + 0.5))) / 512.0
+        for block in np.array_split(np.arange(t.size), 20):
+            sink.on_block(type("Block", (), {"time_s": t[block], "tip_w_m": 1e-6 * rng.standard_normal(block.size),
+                                             "state": "running"})())
+        t0 = float(t[-1])
+    assert [a[1].airspeed_mps for a in published] == [5.0, 5.0, 6.0]
 
 
 class _Recorder:
@@ -595,7 +648,7 @@ def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
     pts = [_point(5.0), _point(6.0)]
 
     def result(k, end_s):  # the k-th point's result, identified at end_s on a plateau from 100 s (5 + 80 s dwell)
-        plateau = {"plateau_start_s": 100.0, "settle_s": 5.0, "dwell_s": 80.0, "sim_time_s": end_s}
+        plateau = {"point_index": k, "plateau_start_s": 100.0, "settle_s": 5.0, "dwell_s": 80.0, "sim_time_s": end_s}
         return parse_monitor(monitor_msg(k, pts[k - 1], decide(pts[:k], s), 0.1, plateau=plateau))
 
     res = FlutterTestResult(points=pts[:1], decisions=[decide(pts[:1], s)], max_airspeed_mps=6.0)
@@ -609,6 +662,12 @@ def test_a_stopped_live_test_counts_the_point_the_node_identified_last():
     ahead = FlutterTestResult(points=pts[:1], max_airspeed_mps=7.0)  # the 7 m/s point's result never came
     assert take_late_result(ahead, [result(1, 50.0), result(2, 185.0)]) is None
     assert len(cut.points) == len(ahead.points) == 1
+    # a repeated airspeed is a result of its own: the 5 m/s point taken again is counted (it was taken for the first)
+    again = FlutterTestResult(points=pts[:1], max_airspeed_mps=5.0)
+    repeat = parse_monitor(monitor_msg(2, pts[0], decide(pts[:1], s), 0.1, plateau={
+        "point_index": 2, "plateau_start_s": 100.0, "settle_s": 5.0, "dwell_s": 80.0, "sim_time_s": 185.0}))
+    assert take_late_result(again, [result(1, 50.0), repeat]) == "point" and len(again.points) == 2
+    assert take_late_result(again, [result(1, 50.0), repeat]) is None
 
 
 def test_a_test_that_flutters_at_its_first_point_says_so(tmp_path, capsys):
@@ -708,6 +767,11 @@ def test_the_replay_skips_a_step_down_as_the_live_monitor_does(monkeypatch):
     points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
                                         settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0)
     assert [p.airspeed_mps for p in points] == [6.0, 7.0, 8.0, 9.0]
+    # the same airspeed commanded again (a repeated point of the flutter test) is a point of its own
+    cmds = [(0.0, 6.0), (25.0, 7.0), (50.0, 7.0), (75.0, 5.0), (100.0, 9.0)]
+    points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
+                                        settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0)
+    assert [p.airspeed_mps for p in points] == [6.0, 7.0, 7.0, 9.0]
 
 
 def test_the_replay_takes_no_test_point_where_a_controller_closed_the_loop(monkeypatch):
@@ -767,7 +831,7 @@ def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_p
 
     def write_until_full(self, *args, **kwargs):
         calls.append(1)
-        if len(calls) > 80_000:  # about 52 s of readings (3 topics at 512 samples/s): two 20 s dwells and more
+        if len(calls) > 120_000:  # about 78 s of readings (3 topics at 512 samples/s): three 20 s dwells and more
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write(self, *args, **kwargs)
 
@@ -778,10 +842,10 @@ def test_a_full_disk_stops_the_in_process_test_with_the_bag_written_so_far(tmp_p
     err, out = captured.err, json.loads(captured.out)
     last = err.strip().splitlines()[-1]
     assert code == 1 and "Traceback" not in err, err
-    assert last.startswith("panel-rig flutter-test: the recording failed after 2 test point(s), at t = 5"), last
+    assert last.startswith("panel-rig flutter-test: the recording failed after 3 test point(s), at t = 7"), last
     assert "No space left on device; the test stopped there" in last and "bag recover" in last
-    assert len(out["test_points"]) == 2 and out["interrupted"] and out["fluttered"] is False
-    assert out["stop_reason"] == "interrupted by a failed recording after 2 test point(s)"
+    assert len(out["test_points"]) == 3 and out["interrupted"] and out["fluttered"] is False
+    assert out["stop_reason"] == "interrupted by a failed recording after 3 test point(s)"
     # `margin` is the predicted margin at the last point, as the monitor's; `required_margin` is --margin
     assert out["required_margin"] == 0.1 and out["predicted_flutter_speed_mps"] is not None
     assert out["margin"] == pytest.approx(1 - out["test_points"][-1]["airspeed_mps"] / out["predicted_flutter_speed_mps"])
@@ -845,6 +909,7 @@ def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path,
     ("--margin", "nan", "--margin must be in (0, 1), got nan"),
     ("--margin", "1", "--margin must be in (0, 1), got 1.0"),
     ("--max-points", "0", "--max-points must be >= 1, got 0"),
+    ("--repeats", "-1", "--repeats must be >= 0, got -1"),
 ])
 def test_a_bad_margin_or_point_count_is_named_with_its_value(tmp_path, capsys, option, value, message):
     from panel_rig.cli import main
@@ -852,3 +917,33 @@ def test_a_bad_margin_or_point_count_is_named_with_its_value(tmp_path, capsys, o
     assert main(["flutter-test", "--in-process", option, value, "--bag-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith(message) and "\n" not in err, err
+
+
+def test_a_repeated_point_is_taken_recorded_and_replayed(tmp_path, capsys):
+    """`flutter-test --in-process --dwell 20`: at 8.968 m/s the prediction (9.47 m/s, interval [9.06, open]) leaves
+    a margin of 0.053; the test takes that airspeed again before it stops, prints why, records the repeated
+    set-point, and `analyze` replays both points from the bag. With `--repeats 0` it stops there at once."""
+    import json
+
+    from panel_rig.analyze_cli import analyze_bag
+    from panel_rig.cli import main
+
+    def run(*extra):
+        code = main(["flutter-test", "--in-process", "--dwell", "20", "--json", "--bag-dir", str(tmp_path),
+                     "--plot", str(tmp_path / "vg.png"), *extra])
+        captured = capsys.readouterr()
+        return code, json.loads(captured.out), captured.err
+
+    code, out, err = run()
+    u = [p["airspeed_mps"] for p in out["test_points"]]
+    assert code == 0 and len(u) == 6 and u[4] == u[5] and len(set(u)) == 5, u
+    assert f"point 5: {u[4]:.3f} m/s" in err and f"next {u[4]:.3f} m/s (repeat the point: predicted margin" in err
+    assert out["stop_reason"].startswith("predicted margin") and not out["fluttered"]
+    replay = analyze_bag(out["bag"])["flutter_test"]
+    assert [p["airspeed_mps"] for p in replay["test_points"]] == u
+    for live, again in zip(out["test_points"], replay["test_points"]):
+        assert again["damping_ratio"] == pytest.approx(live["damping_ratio"], abs=1e-9)
+    assert replay["predicted_flutter_speed_mps"] == pytest.approx(out["predicted_flutter_speed_mps"], rel=1e-9)
+    code, once, _ = run("--repeats", "0")
+    assert code == 0 and [p["airspeed_mps"] for p in once["test_points"]] == u[:5]
+    assert once["stop_reason"] == "predicted margin 0.053 < 0.1"

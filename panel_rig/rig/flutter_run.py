@@ -46,12 +46,13 @@ EMIT_BLOCK_S = 1.0
 @dataclass(frozen=True)
 class Dwell:
     """A completed dwell: its airspeed (m/s), the monitor's window of the measured tip (m), the sample interval (s),
-    and whether the plateau fluttered."""
+    whether the plateau fluttered, and which plateau of the test it was (1: the first airspeed commanded)."""
 
     airspeed_mps: float
     window_m: np.ndarray
     dt_s: float
     fluttered: bool
+    plateau: int = 0
 
 
 class RigMeasure:
@@ -75,6 +76,7 @@ class RigMeasure:
         self._watch = FlutterWatch(rig.panel_length_m)
         self.flutter_time_s: float | None = None
         self.plateau_start_s = 0.0  # the rig's time at the newest airspeed command (s)
+        self.plateaus = 0  # airspeeds commanded so far (a repeated airspeed counts again)
 
     def _march(self, n_samples: int, done: Callable[[np.ndarray, np.ndarray], None] | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -103,6 +105,8 @@ class RigMeasure:
         if not result.accepted:  # not a flutter: the plan asked for what the rig does not allow
             raise ValueError(f"airspeed {u:g} m/s rejected by the rig: {result.reason}")
         self.flutter_time_s, self.plateau_start_s = None, self.rig.time_s
+        self.plateaus += 1
+        plateau = self.plateaus
         self._watch = FlutterWatch(self.rig.panel_length_m)  # the plateau's samples from the command on
         settle_t, settle = self._march(int(round(self.settings.settle_s / self.dt_s)))
         if self.flutter_time_s is not None:
@@ -116,7 +120,7 @@ class RigMeasure:
             t_all, y_all = np.concatenate([before_t, dwell_t]), np.concatenate([before, dwell])
             self._newest = t_all[-1:], y_all[-1:]
             window, dt_s = resample_window(t_all, y_all, start_s, start_s + self.settings.dwell_s)
-            self.last = Dwell(u, window, dt_s, self._watch.fluttered or self.rig.state != RUNNING)
+            self.last = Dwell(u, window, dt_s, self._watch.fluttered or self.rig.state != RUNNING, plateau)
 
         _, dwell = self._march(int(round(self.settings.dwell_s / self.dt_s)), dwell_done)
         if self.flutter_time_s is not None:
@@ -130,8 +134,10 @@ def take_late_point(res: FlutterTestResult, dwell: Dwell | None, bands: Callable
     """The point of a dwell that completed before the test was stopped but was not taken yet (the stop came during
     its identification): identified and added to ``res``, as the live client adds the node's late result. True
     if a point was added."""
+    # each plateau before the one under way gave a point (a flutter ends the test): the dwell's is taken when there
+    # are as many points as plateaus (a repeated airspeed is a plateau of its own)
     if dwell is None or dwell.fluttered or dwell.airspeed_mps != res.max_airspeed_mps or (
-            res.points and res.points[-1].airspeed_mps == dwell.airspeed_mps):
+            dwell.plateau <= len(res.points)):
         return False
     u = dwell.airspeed_mps
     res.points.append(identify_point(dwell.window_m, dwell.dt_s, u, bands(u), None, settings.ssi))
@@ -166,16 +172,16 @@ def pretest_flutter_speed(model: Any) -> tuple[float, int]:
 
 
 def pretest_plan(cfg: PanelConfig, variant: str = "full", margin: float = 0.1, start_mps: float | None = None,
-                 dwell_s: float | None = None, settle_s: float | None = None, max_points: int | None = None
-                 ) -> tuple[Any, float, int, FlutterTestSettings]:
+                 dwell_s: float | None = None, settle_s: float | None = None, max_points: int | None = None,
+                 repeats: int | None = None) -> tuple[Any, float, int, FlutterTestSettings]:
     """The pre-test analysis: a stepper of ``cfg``, the model's linear U_f (m/s) and flutter mode, and the plan
     from them (None: the plan's default). Raises ValueError when the model does not flutter."""
     from panel_rig.model.stepper import Stepper
 
     st = Stepper(cfg, variant=variant)
     uf, mode = pretest_flutter_speed(st.model)
-    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points))
-               if v is not None}
+    changes = {k: v for k, v in (("dwell_s", dwell_s), ("settle_s", settle_s), ("max_points", max_points),
+                                 ("repeats", repeats)) if v is not None}
     return st, uf, mode, default_plan(uf, margin, start_mps, **changes)
 
 
@@ -247,14 +253,15 @@ def node_equivalent_rig(cfg: PanelConfig, stepper: Any, uf_mps: float, sinks: Se
 
 def run_on_rig(cfg: PanelConfig, variant: str = "full", settings: FlutterTestSettings | None = None,
                margin: float = 0.1, start_mps: float | None = None,
-               on_point: Callable[[TestPoint, Decision], None] | None = None
+               on_point: Callable[[TestPoint, Decision], None] | None = None, **plan: Any
                ) -> tuple[FlutterTestResult, float]:
-    """The whole procedure on a fresh in-process Rig of ``cfg``; returns (result, the model's linear U_f)."""
+    """The whole procedure on a fresh in-process Rig of ``cfg``; returns (result, the model's linear U_f).
+    ``plan``: changes to the default plan's other settings (e.g. ``repeats=0``)."""
     from panel_rig.model.stepper import Stepper
 
     st = Stepper(cfg, variant=variant)
     uf, mode = pretest_flutter_speed(st.model)
-    settings = settings or default_plan(uf, margin, start_mps)
+    settings = settings or default_plan(uf, margin, start_mps, **plan)
     rig = node_equivalent_rig(cfg, st, uf)
     return run_procedure(RigMeasure(rig, settings), bands_from_model(st.model, mode), settings, on_point), uf
 
@@ -357,8 +364,8 @@ class FlutterMonitorSink:
         # then never identified: the test hung
         if not kept_minimum(lo, end_s, self.min_dwell_s):
             return
-        if self.points and self._u <= self.points[-1].airspeed_mps:
-            return  # the monitor follows the ascent only
+        if self.points and self._u < self.points[-1].airspeed_mps:
+            return  # the monitor follows the ascent only (the same airspeed again is a repeated point)
         w0 = time.monotonic()
         yy, dt = resample_window(t, y, lo, end_s)
         pt = identify_point(yy, dt, self._u, self.bands(self._u), ssi=self.settings.ssi)

@@ -86,14 +86,14 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
              bag_dir: str | Path | None = "bags", plot: str | Path | None = None, rerun: str | None = None,
              dwell_s: float | None = None, settle_s: float | None = None, domain_id: int | None = None,
              max_points: int | None = None, startup_s: float = RIG_STARTUP_TIMEOUT_S,
-             progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+             progress: Callable[[str], None] | None = None, repeats: int | None = None) -> dict[str, Any]:
     """The procedure on a freshly started live node; returns the JSON payload (the issue's keys, plus
     ``simulated_s``, ``wall_s``, ``node_rtf`` and the node's own last prediction for comparison). ``progress``:
     called with a line after each test point (:func:`panel_rig.flutter_cli.point_line`)."""
     t0 = time.monotonic()
     # the pre-test analysis (this process) gives the plan: U_f, the start and the step; a start the node would refuse
     # ends here, before a run directory is made
-    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points)
+    st, uf, mode, settings = pretest_plan(cfg, variant, margin, start_mps, dwell_s, settle_s, max_points, repeats)
     problem = start_problem(settings, max_test_airspeed_mps(uf)) or noise_problem(cfg.sensor_tip_noise_m,
                                                                                    cfg.panel_length_m)
     if problem is not None:
@@ -210,10 +210,12 @@ def take_late_result(res: FlutterTestResult, results: list[dict[str, Any]]) -> s
     from panel_rig.ros.flutter_monitor import point_from_values
 
     u = res.max_airspeed_mps  # the point under way: its airspeed is commanded before it is measured
-    if not results or u <= 0 or res.fluttered or (res.points and res.points[-1].airspeed_mps == u):
+    if not results or u <= 0 or res.fluttered:
         return None
     v = results[-1]
-    if v.get("airspeed_mps") != u:
+    # the node numbers its results from 1 and each before the one under way was a point (a flutter ends the test):
+    # taken when there are as many points (a repeated airspeed is a result of its own)
+    if v.get("airspeed_mps") != u or int(v.get("point_index", -1)) <= len(res.points):
         return None
     if v.get("fluttered") == "true":
         res.fluttered = True
