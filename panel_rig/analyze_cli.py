@@ -60,6 +60,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     }
     replay = _replay(rec)
     result["flutter_test"], ft_points = (replay.payload, replay.points) if replay else (None, [])
+    ft_times = replay.ends_s if replay else []
     if plots_dir is not None:
         say(f"writing the plots to {plots_dir}")
     result["plots"] = (write_plots(Path(plots_dir), rec.t_s, rec.tip_w_over_L, rec.airspeed_mps, result,
@@ -68,7 +69,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
         result["plots"].append(_plot_replay(replay, Path(plots_dir) / FLUTTER_TEST_PLOT))
     if rerun_path is not None:
         say(f"writing the Rerun recording {rerun_path}")
-    result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points) if rerun_path is not None
+    result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points, ft_times) if rerun_path is not None
                        else None)
     return result
 
@@ -90,7 +91,8 @@ def quiet_rms_of(parameters: dict[str, Any], panel_length_m: float, floor: float
 
 class FlutterTestReplay(NamedTuple):
     """The flutter-test replay of a recording: its JSON part, the identified points (TestPoint), the final
-    decision on them, and the model of the run's parameters with its linear U_f (m/s) and flutter mode."""
+    decision on them, the model of the run's parameters with its linear U_f (m/s) and flutter mode, and when each
+    point was identified (its window's end, s)."""
 
     payload: dict[str, Any]
     points: list[Any]
@@ -98,6 +100,7 @@ class FlutterTestReplay(NamedTuple):
     model: Any
     uf_mps: float
     mode: int
+    ends_s: list[float]
 
 
 def control_timeout_s(parameters: dict[str, Any]) -> float:
@@ -150,10 +153,12 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
     # dwell took no point there, though the node identifies a cut plateau of the minimum dwell)
     flutter_test = monitored and rec.parameters.get("flutter_test.hold") is True
     skipped: list[str] = []
+    ends: list[float] = []
     points = replay_points(rec.t_s, rec.tip_w_over_L * rec.panel_length_m, cmds, bands_from_model(model, mode),
                            rec.panel_length_m, force, airspeed_mps=rec.airspeed_mps,
                            complete_only=flutter_test and "dwell_s" in window, skipped=skipped,
-                           closed_loop_s=control_spans(rec.commands, control_timeout_s(rec.parameters)), **window)
+                           closed_loop_s=control_spans(rec.commands, control_timeout_s(rec.parameters)),
+                           ends_s=ends, **window)
     margin = float(rec.parameters.get("flutter_test.margin", 0.1))
     out: dict[str, Any] = {"test_points": [p.as_dict() for p in points], "model_flutter_speed_mps": uf,
                            "predicted_flutter_speed_mps": None, "predicted_flutter_speed_ci_mps": None,
@@ -169,7 +174,7 @@ def _replay(rec: Any) -> FlutterTestReplay | None:
                        predicted_flutter_speed_ci_mps=pd["predicted_flutter_speed_ci_mps"],
                        prediction_method=d.prediction.method,
                        margin=d.prediction.margin(points[-1].airspeed_mps))
-    return FlutterTestReplay(out, points, d, model, uf, mode)
+    return FlutterTestReplay(out, points, d, model, uf, mode, ends)
 
 
 def _plot_replay(replay: FlutterTestReplay, path: Path) -> str:
@@ -182,12 +187,14 @@ def _plot_replay(replay: FlutterTestReplay, path: Path) -> str:
     return str(plot_flutter_test(res, replay.model, replay.mode, replay.uf_mps, path, title))
 
 
-def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = ()) -> str:
+def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_points: list[Any] = (),
+                 ft_times: list[float] = ()) -> str:
     """The recording as a Rerun `.rrd` through the rig's own logger (same entities as live), with the analysis of
     ``result``: the plateaus' status and the onset (text log), and the flutter-test replay's identified points
-    (flutter monitor views). The blueprint holds only views with data: control views when the bag has control
-    commands, the flutter views when the replay identified a point, the analysis log when there are plateaus, the
-    modal and panel-shape views when the bag has modal states and shapes."""
+    (flutter monitor views, each at ``ft_times``: when it was identified). The blueprint holds only views with
+    data: control views when the bag has control commands, the flutter views when the replay identified a point,
+    the analysis log when there are plateaus, the modal and panel-shape views when the bag has modal states and
+    shapes."""
     from panel_rig.analysis.flutter_test import margin_points
     from panel_rig.topics import CONTROL_TOPIC
     from panel_rig.viz import RerunLogger
@@ -195,7 +202,6 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
     n_modes = rec.q.shape[1]  # 0: the bag has no modal states (a flutter test's), no modal view
     result = result or {}
     control = rec.commands.get(CONTROL_TOPIC, [])
-    replayed = _replay_times(rec, result, ft_points)
     decisions = _replay_decisions(ft_points, rec.parameters)
     views = (("control",) if control else ()) + (("flutter",) if ft_points else ()) + (
         ("flutter_uf",) if any(d.prediction is not None for d in decisions) else ()) + (
@@ -213,20 +219,12 @@ def _write_rerun(rec: Any, path: Any, result: dict[str, Any] | None = None, ft_p
         for t, x, z in rec.shapes:
             logger.log_shape(t, x, z)
         margin = float(rec.parameters.get("flutter_test.margin", 0.1))
-        for k, (t, d) in enumerate(zip(replayed, decisions), start=1):
+        for k, (t, d) in enumerate(zip(ft_times, decisions), start=1):
             logger.log_flutter_point(t, ft_points[:k], d, margin)
         _log_analysis(logger, result)
     finally:
         logger.close()
     return str(path)
-
-
-def _replay_times(rec: Any, result: dict[str, Any], points: list[Any]) -> list[float]:
-    """When each replayed point was identified: the end of the analysed plateau at its airspeed (the end of the
-    recording when none matches)."""
-    ends = [(p["airspeed_mps"], p["t_end_s"]) for p in result.get("plateaus") or []]
-    t_last = float(rec.t_s[-1]) if rec.t_s.size else 0.0
-    return [min((t for u, t in ends if abs(u - p.airspeed_mps) < 0.05), default=t_last) for p in points]
 
 
 def _replay_decisions(points: list[Any], parameters: dict[str, Any]) -> list[Any]:

@@ -769,9 +769,11 @@ def test_the_replay_skips_a_step_down_as_the_live_monitor_does(monkeypatch):
     assert [p.airspeed_mps for p in points] == [6.0, 7.0, 8.0, 9.0]
     # the same airspeed commanded again (a repeated point of the flutter test) is a point of its own
     cmds = [(0.0, 6.0), (25.0, 7.0), (50.0, 7.0), (75.0, 5.0), (100.0, 9.0)]
+    ends: list[float] = []  # when each was identified (the Rerun replay logs it there)
     points = flutter_test.replay_points(t, 1e-6 * np.sin(2 * np.pi * 23.0 * t), cmds, lambda u: [], 0.27,
-                                        settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0)
+                                        settle_s=1.0, min_dwell_s=20.0, dwell_s=20.0, ends_s=ends)
     assert [p.airspeed_mps for p in points] == [6.0, 7.0, 7.0, 9.0]
+    assert ends == [21.0, 46.0, 71.0, 121.0]
 
 
 def test_the_replay_takes_no_test_point_where_a_controller_closed_the_loop(monkeypatch):

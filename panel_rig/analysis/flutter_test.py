@@ -598,7 +598,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
                   ssi: SSISettings = SSISettings(), dwell_s: float = np.inf,
                   airspeed_mps: np.ndarray | None = None, complete_only: bool = False,
                   skipped: list[str] | None = None,
-                  closed_loop_s: Sequence[tuple[float, float]] = ()) -> list[TestPoint]:
+                  closed_loop_s: Sequence[tuple[float, float]] = (),
+                  ends_s: list[float] | None = None) -> list[TestPoint]:
     """The test points of a recording: one per airspeed command (plateau from the command + ``settle_s`` to the
     next command, at most ``dwell_s`` long: the live monitor's window), resampled by :func:`resample_window`,
     identified as live (``identify_point``). Only the subcritical ascent is kept: plateaus at U > 0 with at least
@@ -612,7 +613,8 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
     test point either, unless it fluttered. ``closed_loop_s``: (start, end) times (s) in which a controller closed
     the loop (``bag_analysis.control_spans``); a window that overlaps one is no test point: its damping is the
     controlled panel's, not the panel's. ``skipped``: gets a line for each plateau at U > 0 that gave no point,
-    saying why (:func:`no_point_reason`)."""
+    saying why (:func:`no_point_reason`). ``ends_s``: gets each point's window end (s), when the live monitor
+    identified it (a repeated airspeed's two points are one plateau of the bag's analysis, not one time)."""
     t, y = np.asarray(t_s, float), np.asarray(tip_m, float)
     if t.size < 16:
         return []
@@ -649,4 +651,6 @@ def replay_points(t_s: np.ndarray, tip_m: np.ndarray, airspeed_cmds: Sequence[tu
         if force_npm is not None:
             ff = np.interp(t_from + dt * np.arange(yy.size), t, np.asarray(force_npm, float))
         out.append(identify_point(yy, dt, u, bands(u), ff, ssi))
+        if ends_s is not None:
+            ends_s.append(float(t_end))
     return out
