@@ -675,7 +675,7 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
     if not 0 < args.margin < 1:
         raise UsageError(f"--margin must be in (0, 1), got {args.margin}")
     cfg = _config(args)
-    from panel_rig.rig.flutter_run import MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
+    from panel_rig.rig.flutter_run import MAX_DWELL_S, MAX_REPEATS, MAX_SETTLE_S, MIN_DWELL_S
 
     if args.dwell is not None and not MIN_DWELL_S <= args.dwell <= MAX_DWELL_S:
         raise UsageError(f"--dwell must be in [{MIN_DWELL_S:g}, {MAX_DWELL_S:g}] s (simulated), got {args.dwell}")
@@ -686,8 +686,8 @@ def cmd_flutter_test(args: argparse.Namespace) -> int:
             raise UsageError(f"--start-mps must be in (0, {MAX_AIRSPEED_MPS:g}] m/s, got {args.start_mps:.10g}")
     if args.max_points is not None and args.max_points < 1:
         raise UsageError(f"--max-points must be >= 1, got {args.max_points}")
-    if args.repeats is not None and args.repeats < 0:
-        raise UsageError(f"--repeats must be >= 0, got {args.repeats}")
+    if args.repeats is not None and not 0 <= args.repeats <= MAX_REPEATS:
+        raise UsageError(f"--repeats must be in [0, {MAX_REPEATS}], got {args.repeats}")
     if args.settle is not None and not 0.0 <= args.settle <= MAX_SETTLE_S:
         raise UsageError(f"--settle must be in [0, {MAX_SETTLE_S:g}] s (simulated), got {args.settle}")
     if args.domain_id is not None and args.in_process:  # accepted and silently meaningless before

@@ -273,6 +273,22 @@ def test_the_node_and_the_cli_take_the_same_flutter_test_margins():
     assert run("flutter-test", "--in-process", "--margin", "1").returncode == 2
 
 
+def test_the_node_and_the_cli_take_the_same_flutter_test_repeats():
+    """flutter_test.repeats (the monitor's decision) takes what flutter-test --repeats takes: integers in [0, 12];
+    the live test hands its own to the node, so the node's published advice is the client's."""
+    from panel_rig.config import load_config
+    from panel_rig.ros.flutter_live import node_parameters
+    from panel_rig.ros.params import check_node_params
+
+    assert check_node_params({"flutter_test.repeats": 0}) == [] == check_node_params({"flutter_test.repeats": 12})
+    for bad in (-1, 13, 1.5, True):
+        problems = check_node_params({"flutter_test.repeats": bad})
+        assert len(problems) == 1 and problems[0].startswith("flutter_test.repeats"), (bad, problems)
+    assert run("flutter-test", "--in-process", "--repeats", "13").returncode == 2
+    prm = node_parameters(load_config(), "full", 0.1, 5.0, 200.0, 10.48, None, None, 0)
+    assert prm["flutter_test.repeats"] == 0 and check_node_params(prm) == []
+
+
 def test_the_node_s_physics_step_has_sim_dt_s_s_bounds():
     """physics_dt took 1e-9 s (any value in [0, 0.01]): 1e9 steps a simulated second."""
     from panel_rig.ros.params import check_node_params

@@ -911,7 +911,7 @@ def test_a_test_that_could_outgrow_the_disk_is_warned_before_it_starts(tmp_path,
     ("--margin", "nan", "--margin must be in (0, 1), got nan"),
     ("--margin", "1", "--margin must be in (0, 1), got 1.0"),
     ("--max-points", "0", "--max-points must be >= 1, got 0"),
-    ("--repeats", "-1", "--repeats must be >= 0, got -1"),
+    ("--repeats", "-1", "--repeats must be in [0, 12], got -1"),
 ])
 def test_a_bad_margin_or_point_count_is_named_with_its_value(tmp_path, capsys, option, value, message):
     from panel_rig.cli import main

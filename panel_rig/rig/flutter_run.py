@@ -36,6 +36,8 @@ from panel_rig.rig.safety import SafetyLimits
 #: a test point's run-in and dwell (simulated s): the bounds the CLI and the node's flutter_test.* parameters share
 MAX_SETTLE_S = 1e4
 MAX_DWELL_S = 1e5  # (MIN_DWELL_S: the replay's, analysis.flutter_test)
+#: the most repeats of one airspeed a plan may ask for (flutter-test --repeats, the node's flutter_test.repeats)
+MAX_REPEATS = 12
 
 
 #: simulated seconds of readings marched and handed to the sinks at a time: a stop between two such blocks leaves
@@ -280,7 +282,8 @@ class FlutterMonitorSink:
     per point: meant for fast mode, where simulated time waits for it)."""
 
     def __init__(self, cfg: PanelConfig, model, publish: Callable[..., None], margin: float = 0.1,
-                 settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S, dwell_s: float = 200.0) -> None:
+                 settle_s: float = DEFAULT_SETTLE_S, min_dwell_s: float = MIN_DWELL_S, dwell_s: float = 200.0,
+                 repeats: int = FlutterTestSettings.repeats) -> None:
         from panel_rig.analysis.vg import model_flutter_speed
 
         found = model_flutter_speed(model)
@@ -288,7 +291,7 @@ class FlutterMonitorSink:
         self.uf_model, self.mode = found if found is not None else (float("nan"), 2)
         self.bands = bands_from_model(model, self.mode)
         self.settings = FlutterTestSettings(start_mps=0.0, step_mps=0.1 * self.uf_model, margin=margin,
-                                            settle_s=settle_s, dwell_s=dwell_s)
+                                            settle_s=settle_s, dwell_s=dwell_s, repeats=repeats)
         self.publish, self.settle_s, self.min_dwell_s, self.dwell_s = publish, settle_s, min_dwell_s, dwell_s
         self.panel_length_m = cfg.panel_length_m
         self._watch = FlutterWatch(cfg.panel_length_m)  # the plateau in progress's (from each command)

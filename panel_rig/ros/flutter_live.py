@@ -57,7 +57,7 @@ class Drive:
 
 
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
-                    bag_dir: Path | None, rerun: str | None) -> dict[str, Any]:
+                    bag_dir: Path | None, rerun: str | None, repeats: int = 1) -> dict[str, Any]:
     """Every parameter the node needs for the test: the run's physics (so the node's model is the one the test
     plan was made for), fast mode, the monitor's window and hold, recording and the viewer."""
     from panel_rig.config import SCHEMA
@@ -72,7 +72,7 @@ def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwel
     return {**flat, "fast": True, "model.variant": variant, "flutter_monitor": True,
             "publish_rate_hz": 1.0 / (steps * cfg.dt_s),
             "flutter_test.settle_s": float(settle_s), "flutter_test.dwell_s": float(dwell_s),
-            "flutter_test.margin": float(margin), "flutter_test.hold": True,
+            "flutter_test.margin": float(margin), "flutter_test.repeats": int(repeats), "flutter_test.hold": True,
             "safety.max_airspeed_mps": max_test_airspeed_mps(uf_mps),
             "record": bag_dir is not None, "bag_dir": str(bag_dir) if bag_dir is not None else "bags",
             "rerun": f"save:{rerun}" if rerun else "none"}
@@ -109,7 +109,7 @@ def run_live(cfg: Any, variant: str = "full", margin: float = 0.1, start_mps: fl
         progress(warning)
     model = st.model
     prm = node_parameters(cfg, variant, margin, settings.settle_s, settings.dwell_s, uf,
-                          run_dir if bag_dir is not None else None, rerun)
+                          run_dir if bag_dir is not None else None, rerun, settings.repeats)
     if bag_dir is not None:
         from panel_rig.flutter_cli import LIVE_BAG_BYTES_PER_SAMPLE, disk_warning
         from panel_rig.ros.params import NODE_PARAMS

@@ -325,7 +325,8 @@ class RigNode(Node):
             self._flutter_monitor = FlutterMonitorSink(self.cfg, self.rig.stepper.model, self._publish_flutter,
                                                        margin=p["flutter_test.margin"],
                                                        settle_s=p["flutter_test.settle_s"],
-                                                       dwell_s=p["flutter_test.dwell_s"])
+                                                       dwell_s=p["flutter_test.dwell_s"],
+                                                       repeats=p["flutter_test.repeats"])
             self.rig.sinks.append(self._flutter_monitor)
         self.holds = ClientHolds(self.rig, self.get_logger(), wait_for_command=p["fast_wait_for_command"] and p["fast"],
                                  flutter_hold=p["flutter_test.hold"] and p["fast"], flutter_monitor=self._flutter_monitor)

@@ -22,7 +22,7 @@ from panel_rig.config import SCHEMA, PanelConfig, float_from_text, interval_rule
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
 from panel_rig.rig.control import ControlSettings
-from panel_rig.rig.flutter_run import DEFAULT_SETTLE_S, MAX_DWELL_S, MAX_SETTLE_S, MIN_DWELL_S
+from panel_rig.rig.flutter_run import DEFAULT_SETTLE_S, MAX_DWELL_S, MAX_REPEATS, MAX_SETTLE_S, MIN_DWELL_S
 from panel_rig.rig.rig import TunnelSettings
 from panel_rig.rig.safety import SafetyLimits
 
@@ -54,6 +54,16 @@ def _number(default: float, live: bool, description: str, lo: float, hi: float, 
         return None if ok(v) else f"{rule}, got {v!r}"
 
     return NodeParam(float(default), live, check, description, lo, hi)
+
+
+def _count(default: int, description: str, lo: int, hi: int) -> NodeParam:
+    """A read-only integer parameter in [lo, hi]."""
+    def check(v: Any) -> str | None:
+        if isinstance(v, bool) or not isinstance(v, int):
+            return f"expected an integer, got {v!r}"
+        return None if lo <= v <= hi else f"must be in [{lo}, {hi}], got {v!r}"
+
+    return NodeParam(int(default), False, check, description, lo, hi)
 
 
 def _one_of(default: str, choices: tuple[str, ...], description: str) -> NodeParam:
@@ -141,6 +151,8 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                     "as soon as it is complete), simulated s", MIN_DWELL_S, MAX_DWELL_S),
     "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision "
                                    "(as flutter-test --margin)", 0.0, 1.0, lo_open=True, hi_open=True),
+    "flutter_test.repeats": _count(1, "flutter monitor: times its decision takes an airspeed again before a margin "
+                                   "stop on an uncertain prediction (as flutter-test --repeats)", 0, MAX_REPEATS),
     "fast_wait_for_command": NodeParam(False, False, _bool, "fast mode: simulated time starts with the first "
                                        "command received (an operator's, a controller's), not at start-up"),
     "flutter_test.hold": NodeParam(False, False, _bool, "fast mode: hold simulated time after each published test "
