@@ -9,7 +9,7 @@ if there was one. For each plateau the core
    SSI-cov (``identification.identify_ssi``) on a turbulence response, free decay (``identify_free_decay``) on
    the samples after a shaker tap when the force shows one;
 2. updates both boundary predictors from the subcritical points so far (``flutter_margin``): the damping trend
-   of the flutter mode (quadratic in dynamic pressure, >= 3 points) and the Zimmerman–Weissenburger margin of
+   of the flutter mode (quadratic in dynamic pressure, >= 3 airspeeds) and the Zimmerman–Weissenburger margin of
    the two modes (linear in dynamic pressure, >= 3 airspeeds), each with its bootstrap interval;
 3. decides: stop when the flutter mode was not identified at the current point (no damping to clear the next one
    on: a quiet tunnel climbed blind to 1.6 U_f), when its identified damping is below ``min_damping``, or when the
@@ -227,7 +227,7 @@ def uncertain(pred: BoundaryPrediction, wide_ci: float) -> bool:
 
 
 def repeats_at(points: Sequence[TestPoint], airspeed_mps: float) -> int:
-    """How many times the airspeed of the last point was taken again right before it (0: taken once)."""
+    """How many of the points right before the last one were taken at ``airspeed_mps`` too (0: none)."""
     n = 0
     for p in reversed(points[:-1]):
         if p.airspeed_mps != airspeed_mps:
