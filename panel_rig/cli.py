@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from panel_rig import jsonio
+from panel_rig.analysis.flutter_test import FlutterTestSettings
 from panel_rig.analysis.run_checks import coarse_step_warning, forced_settling_warning
 from panel_rig.analyze_cli import add_analyze_arguments, cmd_analyze
 from panel_rig.config import MAX_DURATION_S, ConfigError, PanelConfig, load_config
@@ -921,9 +922,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--settle", type=float, metavar="S",
                    help="simulated seconds of run-in dropped after each airspeed step (default 5)")
     p.add_argument("--max-points", type=int, metavar="N", help="stop after N test points (default 12)")
+    plan = FlutterTestSettings(start_mps=0.0, step_mps=0.0)  # the plan's defaults, named in the help
     p.add_argument("--repeats", type=int, metavar="N",
-                   help="before a margin stop on an uncertain prediction (its 95 %% interval open or wider than 20 %%), "
-                        "take the same airspeed again up to N times (default 1; 0: stop at once)")
+                   help=f"before a margin stop on an uncertain prediction (its 95 %% interval open or wider than "
+                        f"{100 * plan.wide_ci:g} %%), take the same airspeed again up to N times (default "
+                        f"{plan.repeats}; 0: stop at once)")
     p.add_argument("--in-process", action="store_true",
                    help="drive an in-process Rig instead of the live node (no ROS; the unit tests' path)")
     p.add_argument("--domain-id", type=int, metavar="ID",

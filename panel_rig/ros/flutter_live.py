@@ -57,7 +57,7 @@ class Drive:
 
 
 def node_parameters(cfg: Any, variant: str, margin: float, settle_s: float, dwell_s: float, uf_mps: float,
-                    bag_dir: Path | None, rerun: str | None, repeats: int = 1) -> dict[str, Any]:
+                    bag_dir: Path | None, rerun: str | None, repeats: int) -> dict[str, Any]:
     """Every parameter the node needs for the test: the run's physics (so the node's model is the one the test
     plan was made for), fast mode, the monitor's window and hold, recording and the viewer."""
     from panel_rig.config import SCHEMA

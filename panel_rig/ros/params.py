@@ -18,6 +18,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.parameter import Parameter
 
+from panel_rig.analysis.flutter_test import FlutterTestSettings
 from panel_rig.config import SCHEMA, PanelConfig, float_from_text, interval_rule
 from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.options import DEFAULT_AERO, DEFAULT_VARIANT, RIG_AERO_MODELS, VARIANTS
@@ -151,8 +152,9 @@ NODE_PARAMS: dict[str, NodeParam] = {
                                     "as soon as it is complete), simulated s", MIN_DWELL_S, MAX_DWELL_S),
     "flutter_test.margin": _number(0.1, False, "flutter monitor: required speed margin M of its decision "
                                    "(as flutter-test --margin)", 0.0, 1.0, lo_open=True, hi_open=True),
-    "flutter_test.repeats": _count(1, "flutter monitor: times its decision takes an airspeed again before a margin "
-                                   "stop on an uncertain prediction (as flutter-test --repeats)", 0, MAX_REPEATS),
+    "flutter_test.repeats": _count(FlutterTestSettings.repeats, "flutter monitor: times its decision takes an "
+                                   "airspeed again before a margin stop on an uncertain prediction (as flutter-test "
+                                   "--repeats)", 0, MAX_REPEATS),
     "fast_wait_for_command": NodeParam(False, False, _bool, "fast mode: simulated time starts with the first "
                                        "command received (an operator's, a controller's), not at start-up"),
     "flutter_test.hold": NodeParam(False, False, _bool, "fast mode: hold simulated time after each published test "
