@@ -120,7 +120,13 @@ def cmd_modes(args: argparse.Namespace) -> int:
 
 
 def cmd_flutter(args: argparse.Namespace) -> int:
-    from panel_rig.analysis.flutter import UnstableAtScanStart, eigenvalues, find_flutter
+    from panel_rig.analysis.flutter import (
+        UnstableAtScanStart,
+        eigenvalues,
+        find_flutter,
+        flutter_point,
+        instability_ranges,
+    )
     from panel_rig.model.aeroelastic import AeroelasticModel
     from panel_rig.model.linearisation import linear_mass_matrix_kg
     from panel_rig.model.structure import build_structure
@@ -141,16 +147,18 @@ def cmd_flutter(args: argparse.Namespace) -> int:
     # 60-70 m/s was "no flutter"); the same 1 m/s scan, so a flutter speed below 60 m/s is the same number
     search_max_mps = MAX_AIRSPEED_MPS
     unstable = None  # a result, not a bad input (a study reports such a case as "unstable at 1 m/s")
-    try:
-        fp = find_flutter(model, **kw, u_max=search_max_mps, n_scan=int(round(search_max_mps)))
+    try:  # every range, not only the first crossing: a window that closes again is not a flutter boundary
+        ranges = instability_ranges(model, **kw, u_max=search_max_mps, n_scan=int(round(search_max_mps)))
     except UnstableAtScanStart as exc:
-        fp, unstable = None, str(exc)
+        ranges, unstable = [], str(exc)
+    fp = flutter_point(model, ranges[0][0], **kw) if ranges else None
     if fp is None:
         payload = {"flutter_speed_mps": None, "flutter_frequency_hz": None, "dominant_mode": None,
-                   "mode_shares": None, "searched_up_to_mps": search_max_mps, "unstable_at_scan_start": unstable}
+                   "mode_shares": None, "unstable_at_scan_start": unstable}
     else:
         payload = {"flutter_speed_mps": fp.speed_mps, "flutter_frequency_hz": fp.frequency_hz,
                    "dominant_mode": fp.dominant_mode, "mode_shares": fp.mode_shares}
+    payload.update(searched_up_to_mps=search_max_mps, unstable_ranges_mps=[list(r) for r in ranges])
     payload.update(aero=args.aero, rom_modes=kw["rom_modes"], formulation=args.formulation, variant=args.variant)
     vg = None
     if args.vg:
@@ -193,6 +201,11 @@ def cmd_flutter(args: argparse.Namespace) -> int:
                     f"{args.formulation})\n"
                     f"flutter frequency  {fp.frequency_hz:8.3f} Hz\n"
                     f"dominant mode      {fp.dominant_mode} (|q| shares {np.round(fp.mode_shares, 3).tolist()})")
+            if ranges[0][1] is not None:  # a window that closes again: the flutter speed is not a boundary
+                low_rom = ("; the aero ROM is least accurate at low airspeed (high reduced frequency): compare "
+                           "--aero full") if args.aero == "rom" and fp.speed_mps < 0.5 * search_max_mps else ""
+                text += (f"\nunstable           {_ranges_text(ranges, False)} (the first range closes again: a "
+                         f"window of instability{low_rom})")
         if vg is not None:
             n = vg.poles.shape[1]
             text += f"\n\nV-g of the model the stepper marches ({_model_label('rom', rom_modes)}, continuous time):"

@@ -84,3 +84,62 @@ def test_the_flutter_command_searches_the_whole_airspeed_range(capsys):
     assert out["flutter_speed_mps"] is None and out["unstable_at_scan_start"] == "unstable already at 1.0 m/s"
     assert main(["flutter", "--set", "panel.thickness_m=0.003", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["unstable_at_scan_start"] is None
+
+
+def _sign_changes(model, speeds, **kw) -> list[float]:
+    """Airspeeds of a fine grid where the largest growth rate changes sign (the grid's own answer)."""
+    from panel_rig.analysis.flutter import growth_rate
+
+    g = np.array([growth_rate(model, u, **kw) for u in speeds])
+    return [float(speeds[i + 1]) for i in np.flatnonzero(np.diff(g > 0))]
+
+
+def test_a_window_of_instability_narrower_than_the_scan_step_is_found():
+    """With little structural damping the aero ROM's mode 2 is unstable over ~1.03-1.85 m/s, stable again up to
+    9.6 m/s: the 1 m/s scan's samples (1 and 2 m/s) are both stable, and the scan reported 9.60 m/s. The ranges
+    are checked against a 0.005 m/s grid's sign changes of the growth rate."""
+    from panel_rig.analysis.flutter import growth_rate, instability_ranges
+    from panel_rig.config import load_config
+    from panel_rig.model.aeroelastic import AeroelasticModel
+
+    m = AeroelasticModel(load_config(None, ["structure.damping_ratio=0.002"]))
+    kw = dict(aero="rom", rom_modes=12)
+    assert growth_rate(m, 1.0, **kw) < 0 and growth_rate(m, 2.0, **kw) < 0  # the samples step over it
+    fp = find_flutter(m, **kw, u_max=100.0, n_scan=100)
+    ranges = instability_ranges(m, **kw, u_min=1.0, u_max=20.0, n_scan=20)
+    assert len(ranges) == 2 and ranges[1][1] is None
+    assert fp.speed_mps == pytest.approx(ranges[0][0], abs=1e-6) and fp.dominant_mode == 2
+    fine = _sign_changes(m, np.arange(1.0, 12.0, 0.005), **kw)
+    assert len(fine) == 3
+    assert np.allclose([ranges[0][0], ranges[0][1], ranges[1][0]], fine, atol=0.005)
+
+
+def test_the_scan_s_slopes_do_not_refine_a_model_without_windows(model, monkeypatch):
+    """No interval of the default full lattice's scan looks for a window (each costs ~20 eigensolutions): the far,
+    heavily damped roots of the discrete lattice, whose nearest root at U + 1 mm/s is another one, get no slope."""
+    from panel_rig.analysis import flutter
+
+    calls = []
+    monkeypatch.setattr(flutter, "_unstable_between", lambda *a, **k: calls.append(a[1:3]))
+    assert flutter.instability_ranges(model, aero="full", u_max=30.0, n_scan=30)[0][1] is None
+    assert calls == []
+
+
+def test_the_flutter_command_reports_a_window_that_closes_again(capsys):
+    import json
+
+    from panel_rig.cli import main
+
+    args = ["flutter", "--aero", "rom", "--set", "structure.damping_ratio=0.002"]
+    assert main(args + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["flutter_speed_mps"] == pytest.approx(1.026, abs=1e-3)
+    assert np.allclose(out["unstable_ranges_mps"][0], [1.026, 1.849], atol=1e-3)
+    assert out["unstable_ranges_mps"][1][0] == pytest.approx(9.600, abs=1e-3)
+    assert out["unstable_ranges_mps"][1][1] is None
+    assert main(args) == 0
+    assert "unstable           1.026-1.849 m/s, from 9.600 m/s (the first range closes again" in (
+        capsys.readouterr().out)
+    assert main(["flutter", "--json"]) == 0  # the default model: one range, open to 100 m/s
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["unstable_ranges_mps"]) == 1 and out["unstable_ranges_mps"][0][1] is None
