@@ -120,7 +120,7 @@ def test_the_scan_s_slopes_do_not_refine_a_model_without_windows(model, monkeypa
     from panel_rig.analysis import flutter
 
     calls = []
-    monkeypatch.setattr(flutter, "_unstable_between", lambda *a, **k: calls.append(a[1:3]))
+    monkeypatch.setattr(flutter, "minimize_scalar", lambda *a, **k: calls.append(k["bounds"]))
     assert flutter.instability_ranges(model, aero="full", u_max=30.0, n_scan=30)[0][1] is None
     assert calls == []
 

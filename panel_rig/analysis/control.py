@@ -15,6 +15,7 @@ g in N s/m^2 (N/m of force per m/s of tip velocity). Pure functions on arrays; n
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -22,8 +23,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.linalg
 import scipy.signal
-from scipy.optimize import brentq
 
+from panel_rig.analysis.flutter import edges_to_ranges, find_flutter, instability_edges
 from panel_rig.config import PanelConfig
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.structure import mode_shapes
@@ -221,32 +222,20 @@ class ClosedLoopFlutter:
 def closed_loop_flutter(model: AeroelasticModel, law: ControlLaw, loop: LoopModel, rom_modes: int | None = None,
                         u_min: float = 0.5, u_max: float = 30.0, n_scan: int = 60,
                         all_ranges: bool = False) -> ClosedLoopFlutter:
-    """Lowest airspeed where a closed-loop eigenvalue crosses into Re s > 0 (scan, then Brent). ``all_ranges``: the
-    scan goes on to u_max and every unstable interval it brackets is refined (``unstable_ranges_mps``)."""
-    def g(u: float) -> float:
-        return growth_rate(model, u, law, loop, rom_modes)
-
+    """Lowest airspeed where a closed-loop eigenvalue crosses into Re s > 0 (scan, then Brent; a window narrower
+    than the scan step is found too: :func:`panel_rig.analysis.flutter.instability_edges`). ``all_ranges``: the
+    scan goes on to u_max and every unstable interval is refined (``unstable_ranges_mps``)."""
     speeds = np.linspace(u_min, u_max, n_scan)
-    rates = [g(speeds[0])]
-    if rates[0] > 0 and not all_ranges:
-        return ClosedLoopFlutter(None, None, unstable_at_low_speed=True)
-    crossings: list[float] = []  # airspeeds where max Re s changes sign, in order
-    for prev, u in zip(speeds[:-1], speeds[1:]):
-        rates.append(g(u))
-        if (rates[-2] > 0) != (rates[-1] > 0):
-            crossings.append(float(brentq(g, prev, u, xtol=1e-5)))
-            if not all_ranges:
-                break
-    low = rates[0] > 0
-    bounds = ([float(u_min)] if low else []) + crossings
-    if all_ranges and len(bounds) % 2:
-        bounds.append(None)  # unstable to the end of the scan
-    ranges = tuple(zip(bounds[0::2], bounds[1::2])) if all_ranges else ()
+    edges_found = instability_edges(lambda u: closed_loop_eigenvalues(model, u, law, loop, rom_modes), speeds,
+                                    xtol_mps=1e-5)
+    edges = list(edges_found if all_ranges else itertools.islice(edges_found, 1))
+    low = bool(edges) and growth_rate(model, u_min, law, loop, rom_modes) > 0
+    ranges = tuple(edges_to_ranges(edges)) if all_ranges else ()
     if low:
         return ClosedLoopFlutter(None, None, unstable_at_low_speed=True, unstable_ranges_mps=ranges)
-    if not crossings:
+    if not edges:
         return ClosedLoopFlutter(None, None)
-    uf = crossings[0]
+    uf = edges[0]
     s = closed_loop_eigenvalues(model, uf + 1e-4, law, loop, rom_modes)
     i = int(np.argmax(s.real))
     return ClosedLoopFlutter(float(uf), float(abs(s[i].imag) / (2 * np.pi)), unstable_ranges_mps=ranges)
@@ -287,8 +276,6 @@ def design_law(model: AeroelasticModel, actuator_bandwidth_hz: float = 100.0, de
     loop delay from 0 to ROBUST_DELAY_FACTOR x the design delay (no instability at low speed, closed-loop U_f not below the open-loop
     one). Larger gain raises U_f further (the delay-free optimum is far higher) but the delay destabilises the
     third mode (~70 Hz) and, at low speed, the second: robustness to the delay bounds the gain."""
-    from panel_rig.analysis.flutter import find_flutter
-
     rom_modes = model.cfg.rom_modes if rom_modes is None else rom_modes
     open_fp = find_flutter(model, aero="rom", rom_modes=rom_modes, formulation="continuous")
     if open_fp is None:

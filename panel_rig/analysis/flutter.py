@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,12 +94,15 @@ class FlutterPoint:
 SLOPE_STEP_MPS = 1e-3
 
 
-def _real_parts_and_slopes(model: AeroelasticModel, airspeed_mps: float, **kw) -> tuple[np.ndarray, np.ndarray]:
+RootsAt = Callable[[float], np.ndarray]  # the eigenvalues s (1/s) at an airspeed (m/s)
+
+
+def _real_parts_and_slopes(roots_at: RootsAt, airspeed_mps: float) -> tuple[np.ndarray, np.ndarray]:
     """Re s (1/s) of every eigenvalue at U and its slope d Re s / dU (1/m), each root matched to the nearest root at
     U + SLOPE_STEP_MPS; 0 where that root is more than 1 % of |s| away (no match: the step moves a root by about
     SLOPE_STEP_MPS / U of |s|, 1e-4 at 10 m/s; the far, heavily damped roots of the discrete lattice do not pair)."""
-    s0 = roots(model, airspeed_mps, **kw)
-    s1 = roots(model, airspeed_mps + SLOPE_STEP_MPS, **kw)
+    s0 = roots_at(airspeed_mps)
+    s1 = roots_at(airspeed_mps + SLOPE_STEP_MPS)
     dist = np.abs(s0[:, None] - s1[None, :])
     nearest = np.argmin(dist, axis=1)
     paired = dist[np.arange(s0.size), nearest] <= 1e-2 * np.maximum(np.abs(s0), 1.0)
@@ -112,41 +115,38 @@ def _may_turn_unstable(real: np.ndarray, slope: np.ndarray, span_mps: float) -> 
     return bool(np.any((real < 0) & (real + slope * span_mps > 0)))
 
 
-def _unstable_between(model: AeroelasticModel, lo_mps: float, hi_mps: float, **kw) -> float | None:
-    """An airspeed in (lo, hi) where the system is unstable (the bounded maximum of the growth rate), or None."""
-    res = minimize_scalar(lambda u: -growth_rate(model, u, **kw), bounds=(lo_mps, hi_mps), method="bounded",
-                          options={"xatol": 1e-4 * (hi_mps - lo_mps)})
-    return float(res.x) if -res.fun > 0 else None
-
-
-def _crossings(model: AeroelasticModel, u_min: float, u_max: float, n_scan: int, aero: str,
-               **kw) -> Iterator[float]:
-    """The airspeeds (m/s) where the system turns unstable (an eigenvalue crosses into Re s > 0) and stable again,
-    alternately and in order, up to ``u_max``: found on the scan's samples, then by Brent's method; each is yielded
-    as soon as it is found.
+def instability_edges(roots_at: RootsAt, speeds_mps: np.ndarray, xtol_mps: float = 1e-6) -> Iterator[float]:
+    """The airspeeds (m/s) where a system turns unstable (an eigenvalue crosses into Re s > 0) and stable again,
+    alternately and in order, over the scan ``speeds_mps``: found on its samples, then by Brent's method; each is
+    yielded as soon as it is found. Unstable at the first sample: that sample is the first edge.
 
     A window of instability narrower than the scan step is found when a root stable at a sample heads for Re s > 0
     within the step (:func:`_may_turn_unstable`, from either end): the growth rate's maximum in that interval is then
     sought. A stable gap narrower than the step inside an unstable range is not looked for."""
-    kw = dict(aero=aero, **kw)
+    def growth(u: float) -> float:
+        return float(np.max(roots_at(u).real))
+
+    def unstable_between(lo_mps: float, hi_mps: float) -> float | None:
+        res = minimize_scalar(lambda u: -growth(u), bounds=(lo_mps, hi_mps), method="bounded",
+                              options={"xatol": 1e-4 * (hi_mps - lo_mps)})
+        return float(res.x) if -res.fun > 0 else None
 
     def crossing(lo_mps: float, hi_mps: float) -> float:
-        return brentq(lambda x: growth_rate(model, x, **kw), lo_mps, hi_mps, xtol=1e-6)
+        return float(brentq(growth, lo_mps, hi_mps, xtol=xtol_mps))
 
-    speeds = np.linspace(u_min, u_max, n_scan)
-    real, slope = _real_parts_and_slopes(model, speeds[0], **kw)
+    prev_u = float(speeds_mps[0])
+    real, slope = _real_parts_and_slopes(roots_at, prev_u)
+    unstable_at = None  # the last airspeed seen unstable, None while stable
     if real.max() > 0:
-        hint = (" (the aero ROM is least accurate at low airspeed, where the reduced frequency is high: compare "
-                "--aero full)") if aero == "rom" else ""
-        raise UnstableAtScanStart(f"unstable already at {u_min} m/s{hint}")
-    prev_u, unstable_at = speeds[0], None  # unstable_at: the last airspeed seen unstable, None while stable
-    for u in speeds[1:]:
+        yield prev_u
+        unstable_at = prev_u
+    for u in map(float, speeds_mps[1:]):
         if unstable_at is None:
-            real_u, slope_u = _real_parts_and_slopes(model, u, **kw)
+            real_u, slope_u = _real_parts_and_slopes(roots_at, u)
             hi = u if real_u.max() > 0 else None
             if hi is None and (_may_turn_unstable(real, slope, u - prev_u)
                                or _may_turn_unstable(real_u, slope_u, prev_u - u)):
-                hi = _unstable_between(model, prev_u, u, **kw)
+                hi = unstable_between(prev_u, u)
             if hi is not None:
                 yield crossing(prev_u, hi)
                 unstable_at = hi
@@ -154,13 +154,33 @@ def _crossings(model: AeroelasticModel, u_min: float, u_max: float, n_scan: int,
                     yield crossing(hi, u)
                     unstable_at = None
             real, slope = real_u, slope_u
-        elif growth_rate(model, u, **kw) > 0:
+        elif growth(u) > 0:
             unstable_at = u
         else:
             yield crossing(unstable_at, u)
             unstable_at = None
-            real, slope = _real_parts_and_slopes(model, u, **kw)
+            real, slope = _real_parts_and_slopes(roots_at, u)
         prev_u = u
+
+
+def edges_to_ranges(edges: list[float]) -> list[tuple[float, float | None]]:
+    """Alternating edges (unstable from, stable from, ...) as ranges (start, end); end None: to the scan's end."""
+    return [(edges[i], edges[i + 1] if i + 1 < len(edges) else None) for i in range(0, len(edges), 2)]
+
+
+def _crossings(model: AeroelasticModel, u_min: float, u_max: float, n_scan: int, aero: str,
+               **kw) -> Iterator[float]:
+    """:func:`instability_edges` of the model's eigenvalues; raises UnstableAtScanStart when unstable at u_min."""
+    speeds = np.linspace(u_min, u_max, n_scan)
+    edges = instability_edges(lambda u: roots(model, u, aero=aero, **kw), speeds)
+    first = next(edges, None)
+    if first is not None and growth_rate(model, u_min, aero=aero, **kw) > 0:
+        hint = (" (the aero ROM is least accurate at low airspeed, where the reduced frequency is high: compare "
+                "--aero full)") if aero == "rom" else ""
+        raise UnstableAtScanStart(f"unstable already at {u_min} m/s{hint}")
+    if first is not None:
+        yield first
+        yield from edges
 
 
 def flutter_point(model: AeroelasticModel, airspeed_mps: float, aero: str = "full", rom_modes: int | None = None,
@@ -189,5 +209,5 @@ def instability_ranges(model: AeroelasticModel, aero: str = "full", rom_modes: i
     """Every airspeed range (start, end) in m/s up to ``u_max`` where the linear system is unstable; the last end
     is None when it stays unstable to ``u_max``. More than one range, or a closed one, is a window of instability
     (a hump mode, or the aero ROM's at low airspeed with little structural damping)."""
-    edges = list(_crossings(model, u_min, u_max, n_scan, aero, rom_modes=rom_modes, formulation=formulation))
-    return [(edges[i], edges[i + 1] if i + 1 < len(edges) else None) for i in range(0, len(edges), 2)]
+    return edges_to_ranges(list(_crossings(model, u_min, u_max, n_scan, aero, rom_modes=rom_modes,
+                                           formulation=formulation)))
