@@ -96,9 +96,18 @@ class _Spec:
     rule: str
     lo: float | None = None
     hi: float | None = None
+    choices: tuple[str, ...] = ()  # a text parameter's values
+
+    def bool_as_choice(self, value: Any) -> Any:
+        """A YAML 1.1 boolean given for a choice among whose values is "off" (or "on") is that text: YAML reads
+        ``spectrum: off`` and ``--set tunnel.turbulence.spectrum=off`` as false. Any other value is unchanged."""
+        if isinstance(value, bool) and ("on" if value else "off") in self.choices:
+            return "on" if value else "off"
+        return value
 
     def check(self, key: str, value: Any) -> Any:
         """Coerce and validate one value; raise ConfigError naming ``key``."""
+        value = self.bool_as_choice(value)
         if self.kind is float:
             value = number_if_text(value)  # `5e-6`: text to YAML 1.1, a number to rcl and to the reader
             if isinstance(value, str) and value.strip().lower().lstrip("+-.") in ("inf", "infinity", "nan"):
@@ -112,7 +121,8 @@ class _Spec:
             if isinstance(value, bool) or not isinstance(value, int):
                 raise ConfigError(f"{key}: expected an integer, got {value!r}")
         elif not isinstance(value, self.kind):
-            raise ConfigError(f"{key}: expected {self.kind.__name__}, got {value!r}")
+            hint = " (YAML reads no/off/false/yes/on/true as a boolean: quote the text)" if isinstance(value, bool) else ""
+            raise ConfigError(f"{key}: expected {self.kind.__name__}, got {value!r}{hint}")
         if not self.ok(value):
             raise ConfigError(f"{key}: {self.rule}, got {value!r}")
         return value
@@ -147,7 +157,7 @@ def _num(field: str, lo: float | None = None, hi: float | None = None, lo_open: 
 
 
 def _choice(field: str, choices: tuple[str, ...]) -> _Spec:
-    return _Spec(field, str, lambda v: v in choices, f"must be one of {choices}")
+    return _Spec(field, str, lambda v: v in choices, f"must be one of {choices}", choices=choices)
 
 
 LOAD_POINTS = ("quarter", "three_quarter", "center")

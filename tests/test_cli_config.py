@@ -410,6 +410,29 @@ def test_set_takes_numbers_yaml_1_1_leaves_as_text():
         config_from_flat({"air.density_kgpm3": "nan"})
 
 
+def test_off_is_the_spectrum_off_however_it_is_given(tmp_path):
+    """YAML 1.1 reads `off` as false: `--set tunnel.turbulence.spectrum=off`, `spectrum: off` in a parameters file or
+    a study spec and the node's `-p tunnel.turbulence.spectrum:=off` were all "expected str, got False", though the
+    README lists `off` as a value. A boolean for a choice without such a value still names the cause."""
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.params import as_declared, parameter_table
+
+    assert load_config(None, ["tunnel.turbulence.spectrum=off"]).turbulence_spectrum == "off"
+    params = tmp_path / "p.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    tunnel:\n      turbulence:\n        spectrum: off\n")
+    assert load_config(str(params), ()).turbulence_spectrum == "off"
+    assert config_from_flat({"tunnel.turbulence.spectrum": False}).turbulence_spectrum == "off"
+    with pytest.raises(ConfigError, match="got True .YAML reads no/off/false/yes/on/true as a boolean: quote"):
+        config_from_flat({"tunnel.turbulence.spectrum": True})  # no "on" value
+    with pytest.raises(ConfigError, match="aero.load_point: expected str, got False"):
+        config_from_flat({"aero.load_point": False})
+    prm = as_declared(parameter_table(), Parameter("tunnel.turbulence.spectrum", Parameter.Type.BOOL, False))
+    assert (prm.type_, prm.value) == (Parameter.Type.STRING, "off")
+    out = run("lco", "--airspeed", "8", "--duration", "1", "--set", "tunnel.turbulence.spectrum=off", "--json")
+    assert out.returncode == 0, out.stderr
+
+
 def test_set_with_an_empty_value_says_so():
     """`--set panel.length_m=` said "expected a number, got None" (YAML reads nothing as null)."""
     out = run("modes", "--set", "panel.length_m=")

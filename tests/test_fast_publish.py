@@ -497,3 +497,24 @@ def test_a_live_viewer_s_dropped_batches_are_on_diagnostics_and_in_the_log(ros_e
         node.close()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+def test_the_node_takes_off_for_the_turbulence_spectrum(ros_env: dict[str, str]) -> None:
+    """`-p tunnel.turbulence.spectrum:=off` reaches the node as a boolean (YAML 1.1): it refused to start ("expected
+    type 'STRING'"). Given as rclpy hands it over, it starts a quiet tunnel."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from panel_rig.ros.node import RigNode
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = RigNode(context=ctx, parameter_overrides=[
+        Parameter("fast", value=True), Parameter("tunnel.turbulence.spectrum", Parameter.Type.BOOL, False)])
+    try:
+        assert node.get_parameter("tunnel.turbulence.spectrum").value == "off"
+        assert node.rig.turbulence is None  # the rig keeps no field for a quiet tunnel
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)

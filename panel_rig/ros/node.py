@@ -198,10 +198,8 @@ class RigNode(Node):
     def _read_parameters(self) -> tuple[PanelConfig, dict[str, Any]]:
         """Declare every parameter statically typed (with range and read-only flag) and read them."""
         overrides = getattr(self, "_parameter_overrides", {})
-        for name, (default, _) in self._table.items():  # an integer given for a float parameter is that float
-            given = overrides.get(name)
-            if isinstance(default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(given.value))
+        for name, given in list(overrides.items()):  # e.g. an integer given for a float parameter is that float
+            overrides[name] = as_declared(self._table, given)
         problems = []
         for name, (default, descriptor) in self._table.items():
             try:

@@ -231,8 +231,13 @@ def undeclared_problem(names: Sequence[str], declared: Sequence[str]) -> str | N
 def as_declared(table: Mapping[str, tuple[Any, ParameterDescriptor]], prm: Parameter) -> Parameter:
     """A value for a float parameter given as an integer (``ros2 param set ... 1``) or as a number in a string
     (rclpy's YAML loader reads ``5e-06``, as ``ros2 param dump`` writes 5.0e-06, back as a string) is taken
-    as that float. Every other type mismatch is left for rclpy to refuse: types stay static."""
+    as that float; a boolean for a physics choice with an "off" value is that text (``-p
+    tunnel.turbulence.spectrum:=off`` reads as false, see ``_Spec.bool_as_choice``). Every other type mismatch is
+    left for rclpy to refuse: types stay static."""
     entry = table.get(prm.name)
+    if entry is not None and prm.name in SCHEMA and prm.type_ == Parameter.Type.BOOL:
+        text = SCHEMA[prm.name].bool_as_choice(prm.value)
+        return Parameter(prm.name, Parameter.Type.STRING, text) if isinstance(text, str) else prm
     if entry is None or not isinstance(entry[0], float):
         return prm
     if prm.type_ == Parameter.Type.INTEGER:
