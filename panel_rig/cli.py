@@ -398,7 +398,7 @@ def cmd_lco(args: argparse.Namespace) -> int:
         res, tip, _ = run_lco(cfg, _airspeed(args.airspeed), args.duration, args.variant, args.aero, args.scheme,
                               keep=bool(args.plot), progress=Progress("lco"))
         payload = res.as_dict()
-    for line in lco_warnings(payload):
+    for line in lco_warnings(payload, args.duration):
         _note(line)
     if args.plot:
         from panel_rig.analysis.plots import plot_series
@@ -421,7 +421,7 @@ OUTSIDE_RANGE = ("the cubic-truncated model is outside its range (docs/validatio
                  "holds it)")
 
 
-def lco_warnings(payload: dict[str, Any]) -> list[str]:
+def lco_warnings(payload: dict[str, Any], duration_s: float | None = None) -> list[str]:
     """What the numbers of an lco run do not say themselves: a tip past the panel's length (the cubic-truncated
     variants above ~1.05 U_f: `full` at 10.84 m/s read RMS 0.32-0.54 with a peak of 1.28 L, from 0.1 % changes of
     the airspeed or the duration), and a response that never settled (its RMS and frequency are a transient's; in
@@ -442,8 +442,13 @@ def lco_warnings(payload: dict[str, Any]) -> list[str]:
     if payload.get("steady_after_s") is None and payload.get("rms_tip_w_over_L"):
         what = ("a random response to the turbulence (below flutter), a growing or an irregular one"
                 if payload.get("turbulence_intensity") else "a transient or an irregular response")
-        out.append("warning: no steady state within the run (the RMS of the last 1 s windows still changes): the "
-                   f"RMS and frequency are of {what}, not of a limit cycle")
+        from panel_rig.analysis.signals import STEADY_WINDOW_S, STEADY_WINDOWS
+
+        span_s = STEADY_WINDOW_S * STEADY_WINDOWS  # the shortest run in which a steady state can show
+        why = ("the RMS of the last 1 s windows still changes" if duration_s is None or duration_s >= span_s
+               else f"a run of {duration_s:g} s is too short to show one: it takes {span_s:g} s")
+        out.append(f"warning: no steady state within the run ({why}): the RMS and frequency are of {what}, not of a "
+                   "limit cycle")
     return out
 
 

@@ -524,6 +524,22 @@ def test_lco_says_when_its_numbers_are_not_a_limit_cycle_s():
     assert lco_warnings({"diverged": True, "diverged_at_s": 9.78, "abort_reason": "tip |w/L| = 1.0024 exceeds"}) == []
 
 
+def test_a_run_too_short_for_its_numbers_says_so():
+    """`lco --duration 0.01` reported a dominant frequency of 106 Hz (no mode is near it; 10 ms is a quarter of a
+    flutter period) and blamed the RMS of "the last 1 s windows" the run did not have. The frequency is now given
+    only over signals.MIN_PERIODS periods, as analyze and the operator give it."""
+    from panel_rig.cli import lco_warnings
+
+    out = run("lco", "--airspeed", "10", "--duration", "0.01", "--json")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["dominant_frequency_hz"] is None
+    assert "a run of 0.01 s is too short to show one: it takes 3 s" in out.stderr
+    out = run("lco", "--airspeed", "10", "--duration", "1", "--json")  # 23 periods of the 23 Hz response
+    assert json.loads(out.stdout)["dominant_frequency_hz"] == pytest.approx(23.0, abs=1.5)
+    (line,) = lco_warnings({"rms_tip_w_over_L": 0.1, "steady_after_s": None, "diverged": False}, 30.0)
+    assert "the RMS of the last 1 s windows still changes" in line
+
+
 def test_a_diverged_lco_run_s_plot_holds_its_history_up_to_the_divergence(tmp_path):
     """The history of a diverged run ended at the last whole 1 s chunk (5.0 s), its "diverged" mark at 5.37 s: the
     steps of the chunk it diverged in were lost with the error. They are kept now."""

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from panel_rig.analysis.signals import dominant_frequency_hz, rms, steady_onset_s
+from panel_rig.analysis.signals import dominant_frequency_hz, resolved_frequency_hz, rms, steady_onset_s
 from panel_rig.config import PanelConfig
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.stepper import BatchStepper, DivergenceError, Stepper
@@ -69,8 +69,10 @@ def lco_metrics(tip: np.ndarray, dt_s: float, airspeed_mps: float) -> LCOResult:
     if onset is not None:
         n_meas = min(n_meas, tip.size - int(round(onset / dt_s)))
     last = tip[-max(n_meas, 16):]
-    # a signal that does not move has no frequency (it reported 0.0 Hz, or a bin of round-off)
-    freq = dominant_frequency_hz(last, dt_s) if np.ptp(last) > 0 else float("nan")
+    # a signal that does not move has no frequency (it reported 0.0 Hz, or a bin of round-off), nor one whose window
+    # spans fewer than signals.MIN_PERIODS of its periods (a 10 ms run read 106 Hz, a mode the panel does not have)
+    freq = (resolved_frequency_hz(dominant_frequency_hz(last, dt_s), last.size * dt_s) if np.ptp(last) > 0
+            else float("nan"))
     return LCOResult(airspeed_mps, rms(last), float(np.max(np.abs(last))), freq, onset, False)
 
 

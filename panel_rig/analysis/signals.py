@@ -86,8 +86,12 @@ def window_std(x: np.ndarray, n_window: int) -> np.ndarray:
     return np.std(x[: m * n_window].reshape(m, n_window), axis=1)
 
 
-def steady_onset_s(x: np.ndarray, dt_s: float, window_s: float = 1.0, rel_tol: float = 0.03,
-                   n_stable: int = 3) -> float | None:
+#: a steady state shows as STEADY_WINDOWS consecutive windows of STEADY_WINDOW_S seconds (:func:`steady_onset_s`)
+STEADY_WINDOW_S, STEADY_WINDOWS = 1.0, 3
+
+
+def steady_onset_s(x: np.ndarray, dt_s: float, window_s: float = STEADY_WINDOW_S, rel_tol: float = 0.03,
+                   n_stable: int = STEADY_WINDOWS) -> float | None:
     """Start time of the steady part: the first window from which n_stable consecutive 1 s windows have
     RMS within rel_tol of the final window's RMS. None if the end is not steady."""
     w = window_rms(x, max(1, int(round(window_s / dt_s))))
