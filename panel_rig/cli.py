@@ -143,12 +143,13 @@ def cmd_flutter(args: argparse.Namespace) -> int:
               formulation=args.formulation)
     from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 
-    # over the whole airspeed range every command takes (it stopped at 60 m/s: a 1.2 mm panel that flutters near
-    # 60-70 m/s was "no flutter"); the same 1 m/s scan, so a flutter speed below 60 m/s is the same number
+    # over the whole airspeed range every command takes (find_flutter's default; it stopped at 60 m/s: a 1.2 mm panel
+    # that flutters near 60-70 m/s was "no flutter"); the same 1 m/s scan, so a flutter speed below 60 m/s is the
+    # same number
     search_max_mps = MAX_AIRSPEED_MPS
     unstable = None  # a result, not a bad input (a study reports such a case as "unstable at 1 m/s")
     try:  # every range, not only the first crossing: a window that closes again is not a flutter boundary
-        ranges = instability_ranges(model, **kw, u_max=search_max_mps, n_scan=int(round(search_max_mps)))
+        ranges = instability_ranges(model, **kw, u_max=search_max_mps)
     except UnstableAtScanStart as exc:
         ranges, unstable = [], str(exc)
     fp = flutter_point(model, ranges[0][0], **kw) if ranges else None

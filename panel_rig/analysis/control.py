@@ -26,6 +26,7 @@ import scipy.signal
 
 from panel_rig.analysis.flutter import edges_to_ranges, find_flutter, instability_edges
 from panel_rig.config import PanelConfig
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.structure import mode_shapes
 
@@ -279,7 +280,7 @@ def design_law(model: AeroelasticModel, actuator_bandwidth_hz: float = 100.0, de
     rom_modes = model.cfg.rom_modes if rom_modes is None else rom_modes
     open_fp = find_flutter(model, aero="rom", rom_modes=rom_modes, formulation="continuous")
     if open_fp is None:
-        raise ValueError("the open-loop model does not flutter below 60 m/s: nothing to suppress")
+        raise ValueError(f"the open-loop model does not flutter below {MAX_AIRSPEED_MPS:g} m/s: nothing to suppress")
     u_max = 2.5 * open_fp.speed_mps
     delays = np.linspace(0.0, ROBUST_DELAY_FACTOR * delay_s, 6)
     chosen = None

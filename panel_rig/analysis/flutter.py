@@ -9,6 +9,7 @@ import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq, minimize_scalar
 
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.aeroelastic import AeroelasticModel
 
 FORMULATIONS = ("discrete", "continuous")
@@ -90,6 +91,8 @@ class FlutterPoint:
     mode_shares: np.ndarray  # |q_i| of the flutter eigenvector, normalised to max 1
 
 
+#: the flutter scan's default airspeed step (m/s): from 1 m/s to MAX_AIRSPEED_MPS, every command's range
+SCAN_STEP_MPS = 1.0
 #: the airspeed step (m/s) over which each eigenvalue's d Re s / dU is taken at a scan sample
 SLOPE_STEP_MPS = 1e-3
 
@@ -168,9 +171,11 @@ def edges_to_ranges(edges: list[float]) -> list[tuple[float, float | None]]:
     return [(edges[i], edges[i + 1] if i + 1 < len(edges) else None) for i in range(0, len(edges), 2)]
 
 
-def _crossings(model: AeroelasticModel, u_min: float, u_max: float, n_scan: int, aero: str,
+def _crossings(model: AeroelasticModel, u_min: float, u_max: float, n_scan: int | None, aero: str,
                **kw) -> Iterator[float]:
     """:func:`instability_edges` of the model's eigenvalues; raises UnstableAtScanStart when unstable at u_min."""
+    if n_scan is None:
+        n_scan = int(round((u_max - u_min) / SCAN_STEP_MPS)) + 1
     speeds = np.linspace(u_min, u_max, n_scan)
     edges = instability_edges(lambda u: roots(model, u, aero=aero, **kw), speeds)
     first = next(edges, None)
@@ -194,18 +199,18 @@ def flutter_point(model: AeroelasticModel, airspeed_mps: float, aero: str = "ful
 
 
 def find_flutter(model: AeroelasticModel, aero: str = "full", rom_modes: int | None = None,
-                 formulation: str = "discrete", u_min: float = 1.0, u_max: float = 60.0,
-                 n_scan: int = 60) -> FlutterPoint | None:
-    """Lowest airspeed where an eigenvalue crosses into Re s > 0: scan, then Brent's method (see
-    :func:`instability_ranges`, whose first range starts there)."""
+                 formulation: str = "discrete", u_min: float = 1.0, u_max: float = MAX_AIRSPEED_MPS,
+                 n_scan: int | None = None) -> FlutterPoint | None:
+    """Lowest airspeed where an eigenvalue crosses into Re s > 0: scan (``n_scan`` samples, default every
+    SCAN_STEP_MPS), then Brent's method (see :func:`instability_ranges`, whose first range starts there)."""
     for start in _crossings(model, u_min, u_max, n_scan, aero, rom_modes=rom_modes, formulation=formulation):
         return flutter_point(model, start, aero, rom_modes, formulation)
     return None
 
 
 def instability_ranges(model: AeroelasticModel, aero: str = "full", rom_modes: int | None = None,
-                       formulation: str = "discrete", u_min: float = 1.0, u_max: float = 60.0,
-                       n_scan: int = 60) -> list[tuple[float, float | None]]:
+                       formulation: str = "discrete", u_min: float = 1.0, u_max: float = MAX_AIRSPEED_MPS,
+                       n_scan: int | None = None) -> list[tuple[float, float | None]]:
     """Every airspeed range (start, end) in m/s up to ``u_max`` where the linear system is unstable; the last end
     is None when it stays unstable to ``u_max``. More than one range, or a closed one, is a window of instability
     (a hump mode, or the aero ROM's at low airspeed with little structural damping)."""

@@ -14,14 +14,18 @@ import numpy as np
 from panel_rig.analysis.flutter import UnstableAtScanStart, eigenvalues, find_flutter
 from panel_rig.analysis.lco import INITIAL_Q, diverged_result, lco_metrics
 from panel_rig.config import PanelConfig, config_from_flat, load_config
+from panel_rig.model.aerodynamics import MAX_AIRSPEED_MPS
 from panel_rig.model.aeroelastic import AeroelasticModel
 from panel_rig.model.stepper import BatchStepper, Stepper
 
-#: case status (flutter kinds): flutter found, none below 60 m/s, the computation failed, unstable already at the
-#: scan's 1 m/s (a result, not a failure: with the ROM at low damping, its error at high reduced frequency)
+#: case status (flutter kinds): flutter found, none below the scan's top (MAX_AIRSPEED_MPS, as `panel-rig flutter`),
+#: the computation failed, unstable already at the scan's 1 m/s (a result, not a failure: with the ROM at low
+#: damping, its error at high reduced frequency)
 FOUND, NO_FLUTTER, FAILED, UNSTABLE_AT_START = 0, 1, 2, 3
+#: the NO_FLUTTER count's name in a study's summary (before 2026-12-06 the scan, and the name, stopped at 60 m/s)
+NO_FLUTTER_KEY = f"no_flutter_below_{MAX_AIRSPEED_MPS:g}_mps"
 #: the codes' meanings, in the store as the ``status`` variable's CF flag attributes (flag_values, flag_meanings)
-STATUS_MEANINGS = {FOUND: "flutter_found", NO_FLUTTER: "no_flutter_below_60_mps", FAILED: "computation_failed",
+STATUS_MEANINGS = {FOUND: "flutter_found", NO_FLUTTER: NO_FLUTTER_KEY, FAILED: "computation_failed",
                    UNSTABLE_AT_START: "unstable_at_1_mps"}
 FLUTTER_VARS = ("flutter_speed_mps", "flutter_frequency_hz", "dominant_mode", "status", "compute_s")
 BIFURCATION_VARS = ("rms_tip_w_over_L", "peak_tip_w_over_L", "dominant_frequency_hz", "steady_after_s", "diverged",
@@ -53,7 +57,7 @@ def warmups() -> int:
 
 def flutter_case(values: Mapping[str, Any], aero: str = "rom", formulation: str = "discrete") -> dict[str, Any]:
     """The linear flutter point of one configuration, as ``panel-rig flutter --aero A --formulation F`` computes it
-    (ROM with aero.rom_modes modes, scan 1..60 m/s then Brent)."""
+    (ROM with aero.rom_modes modes, scan 1..100 m/s then Brent)."""
     t0 = time.perf_counter()
     cfg = config_from_flat(values)
     out = {"flutter_speed_mps": np.nan, "flutter_frequency_hz": np.nan, "dominant_mode": 0, "status": NO_FLUTTER}

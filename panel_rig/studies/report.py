@@ -107,17 +107,20 @@ def summarize(study: Study, ds: Any) -> dict[str, Any]:
 
 def status_counts(ds: Any) -> dict[str, int]:
     """How many cases ended without a flutter speed, and why (the statistics above cover only the others)."""
-    from panel_rig.studies.cases import FAILED, NO_FLUTTER, UNSTABLE_AT_START
+    from panel_rig.studies.cases import FAILED, NO_FLUTTER, NO_FLUTTER_KEY, UNSTABLE_AT_START
 
     status = ds["status"].values[ds["done"].values.astype(bool)]
-    return {"no_flutter_below_60_mps": int(np.sum(status == NO_FLUTTER)),
+    return {NO_FLUTTER_KEY: int(np.sum(status == NO_FLUTTER)),
             "unstable_at_1_mps": int(np.sum(status == UNSTABLE_AT_START)), "failed": int(np.sum(status == FAILED))}
 
 
 def _without(summary: dict[str, Any]) -> str:
     """'; 27 unstable at 1 m/s, ...': the cases a figure leaves out, for its title."""
+    from panel_rig.studies.cases import MAX_AIRSPEED_MPS, NO_FLUTTER_KEY
+
     parts = [f"{summary[k]} {label}" for k, label in (("unstable_at_1_mps", "unstable at 1 m/s"),
-             ("no_flutter_below_60_mps", "without flutter below 60 m/s"), ("failed", "failed")) if summary.get(k)]
+             (NO_FLUTTER_KEY, f"without flutter below {MAX_AIRSPEED_MPS:g} m/s"), ("failed", "failed"))
+             if summary.get(k)]
     return f"\nnot shown: {', '.join(parts)}" if parts else ""
 
 

@@ -30,7 +30,7 @@ from panel_rig.studies import cases as C
 from panel_rig.studies.spec import Chain, Study
 from panel_rig.studies.store import Store
 
-STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: "none below 60 m/s", C.FAILED: "failed",
+STATUS_NAMES = {C.FOUND: "flutter", C.NO_FLUTTER: f"none below {C.MAX_AIRSPEED_MPS:g} m/s", C.FAILED: "failed",
                 C.UNSTABLE_AT_START: "unstable at 1 m/s"}
 #: what a lost worker, scheduler or connection raises (CommClosedError and dask's timeouts are OSErrors)
 LOST = (OSError, CancelledError)

@@ -192,9 +192,13 @@ EXECUTION_KEYS = ("batch",)
 
 def fingerprint(spec: Mapping[str, Any], base: Mapping[str, Any]) -> str:
     """Identity of a study: the spec as read (less its EXECUTION_KEYS) and the base parameters (resume refuses a
-    different study)."""
+    different study); a flutter study's also the top of its airspeed scan (it was 60 m/s, now MAX_AIRSPEED_MPS: a
+    store begun with the old scan is not resumed with the new one)."""
     what = {k: v for k, v in spec.items() if k not in EXECUTION_KEYS}
-    text = json.dumps({"spec": what, "base": base}, sort_keys=True, default=str)
+    identity: dict[str, Any] = {"spec": what, "base": base}
+    if spec.get("kind") != "bifurcation":
+        identity["flutter_scan_top_mps"] = MAX_AIRSPEED_MPS
+    text = json.dumps(identity, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
