@@ -542,6 +542,11 @@ def cmd_forced(args: argparse.Namespace) -> int:
         raise UsageError(f"{exc}: lower --f0 (a forced response needs a bounded panel)") from None
     payload = {"frequency_hz": r.frequency_hz, "amplitude_tip_w_over_L": r.amplitude_tip_w_over_L,
                "peak_frequency_hz": r.peak_frequency_hz}
+    past = r.amplitude_tip_w_over_L > 1.0  # as lco and lco-sweep say it (forced gave 1.15 L without a word)
+    if past.any():
+        _note(f"warning: at {', '.join(f'{f:g}' for f in r.frequency_hz[past])} Hz the tip passed |w/L| = 1 (up to "
+              f"{r.amplitude_tip_w_over_L.max():.3g}), past the panel's own length: "
+              f"{OUTSIDE_RANGE.replace('its range', 'its range there')}")
     if args.plot:
         from panel_rig.analysis.plots import plot_series
 

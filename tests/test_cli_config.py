@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -538,6 +539,19 @@ def test_a_run_too_short_for_its_numbers_says_so():
     assert json.loads(out.stdout)["dominant_frequency_hz"] == pytest.approx(23.0, abs=1.5)
     (line,) = lco_warnings({"rms_tip_w_over_L": 0.1, "steady_after_s": None, "diverged": False}, 30.0)
     assert "the RMS of the last 1 s windows still changes" in line
+
+
+def test_forced_says_when_the_tip_passes_the_panel_s_length_and_where_it_diverged():
+    """`forced` reported amplitudes of 1.15 L without a word (lco and lco-sweep warn), and a divergence "at t =
+    20.96 s", a time counted over the whole sweep, without the frequency that diverged."""
+    out = run("forced", "--band", "3.5", "4.5", "--step", "0.5", "--f0", "2.35", "--json")
+    assert out.returncode == 0, out.stderr
+    amps = json.loads(out.stdout)["amplitude_tip_w_over_L"]
+    assert amps[0] < 1.0 < min(amps[1:])
+    assert "warning: at 4, 4.5 Hz the tip passed |w/L| = 1 (up to 1.15), past the panel's own length" in out.stderr
+    out = run("forced", "--band", "4", "4.5", "--step", "0.5", "--f0", "3")
+    assert out.returncode == 2
+    assert re.search(r", at 4.5 Hz, 0\.9[0-9]* s into its dwell: lower --f0", out.stderr), out.stderr
 
 
 def test_a_diverged_lco_run_s_plot_holds_its_history_up_to_the_divergence(tmp_path):

@@ -15,7 +15,7 @@ import numpy as np
 
 from panel_rig.config import PanelConfig
 from panel_rig.model.aeroelastic import AeroelasticModel
-from panel_rig.model.stepper import Stepper
+from panel_rig.model.stepper import DivergenceError, Stepper
 
 F0_NPM = 0.05
 BANDS_HZ = ((2.0, 7.0), (23.0, 28.0))
@@ -44,7 +44,11 @@ def forced_sweep(cfg: PanelConfig, f_start_hz: float, f_stop_hz: float, df_hz: f
     for i, f in enumerate(freqs):
         t = np.arange(1, n_dwell + 1) * st.dt_s
         force = f0_npm * np.cos(phase + 2 * np.pi * f * (t - 0.5 * st.dt_s))  # mid-step force
-        tip = st.advance(n_dwell, 0.0, force)
+        try:
+            tip = st.advance(n_dwell, 0.0, force)
+        except DivergenceError as exc:  # say at which frequency (the time alone counts over the whole sweep)
+            raise DivergenceError(f"{exc.reason}, at {f:g} Hz, {exc.time_s - t0:.3f} s into its dwell",
+                                  exc.time_s) from None
         phase += 2 * np.pi * f * n_dwell * st.dt_s
         t0 += n_dwell * st.dt_s
         lasts[i] = tip[-n_last:]
