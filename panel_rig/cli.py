@@ -609,11 +609,14 @@ def cmd_static(args: argparse.Namespace) -> int:
     # a dead load across the clamped direction turns the tip towards it, never past it (pi/2 as the load grows
     # without bound): a tip angle beyond is the modal series' truncation (3 modes pass it between P L^2/D = 30 and 35)
     if not (abs(r.tip_w_over_L) <= 1.0 and abs(r.tip_u_over_L) <= 1.0 and np.isfinite(r.tip_angle_rad)):
-        note = (f"the {r.variant} variant's cubic expansion does not hold at this load (tip w/L {r.tip_w_over_L:.3g}, "
-                f"u/L {r.tip_u_over_L:.3g}: a slope beyond 1 or a tip beyond the panel's length); use --variant exact")
+        model = ("the linear variant's small-deflection theory" if r.variant == "linear"
+                 else f"the {r.variant} variant's cubic expansion")
+        note = (f"{model} does not hold at this load (tip w/L {r.tip_w_over_L:.3g}, u/L {r.tip_u_over_L:.3g}: a slope "
+                "beyond 1 or a tip beyond the panel's length); use --variant exact")
     elif abs(r.tip_angle_rad) >= np.pi / 2:
-        note = (f"the tip angle passes pi/2, which a dead transverse load cannot do: {cfg.n_modes} modes do not "
-                "resolve this load; raise structure.modes (e.g. --set structure.modes=6)")
+        modes = "1 mode does" if cfg.n_modes == 1 else f"{cfg.n_modes} modes do"
+        note = (f"the tip angle passes pi/2, which a dead transverse load cannot do: {modes} not resolve this load; "
+                "raise structure.modes (e.g. --set structure.modes=6)")
     else:
         note = None
     payload.update(tip_force_npm=alpha * D / L**2, n_modes=cfg.n_modes, note=note)

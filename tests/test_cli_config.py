@@ -469,6 +469,12 @@ def test_static_says_when_the_modal_series_is_truncated():
     assert resolved["tip_angle_rad"] < np.pi / 2 and resolved["note"] is None
     cubic = json.loads(run("static", "--tip-load-parameter", "40", "--variant", "full", "--json").stdout)
     assert cubic["tip_u_over_L"] > 1 and "--variant exact" in cubic["note"]  # u/L 3.42 went without a word
+    assert cubic["note"].startswith("the full variant's cubic expansion does not hold")
+    # the linear variant has no cubic expansion to blame; "1 modes do not resolve"
+    linear = json.loads(run("static", "--tip-load-parameter", "5", "--variant", "linear", "--json").stdout)
+    assert linear["note"].startswith("the linear variant's small-deflection theory does not hold"), linear["note"]
+    one = json.loads(run("static", "--tip-load-parameter", "50", "--set", "structure.modes=1", "--json").stdout)
+    assert "1 mode does not resolve this load" in one["note"], one["note"]
 
 
 def test_a_range_s_points_are_the_decimals_typed() -> None:
