@@ -506,3 +506,18 @@ def test_recover_says_it_wrote_a_missing_metadata_yaml(tmp_path: Path, capsys: p
     assert len(out) == 2 and "metadata.yaml was missing: written" in out[0], out
     assert "already complete" in out[1] and "metadata.yaml written" in out[1] and "metadata ok" not in out[1]
     assert (bag / "metadata.yaml").is_file() and analyze_main([str(bag), "--json"]) == 0
+
+
+def test_a_bag_recovered_to_nothing_is_not_a_rig_that_never_ran(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A file cut to 100 bytes recovers to no messages; analyze then said "the rig stopped before it ran a step",
+    though the rig ran for 51 s and the file was cut. It now names the damaged original recover kept."""
+    bag, path = _copy(tmp_path)
+    with open(path, "r+b") as f:
+        f.truncate(100)
+    assert main_bag_recover(str(bag)) == 0
+    assert "recovered 0 messages" in capsys.readouterr().out
+    assert analyze_main([str(bag)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(f"holds no messages: `bag recover` found none it could read in the damaged original (kept as "
+                         f"{MCAP}.broken)"), line

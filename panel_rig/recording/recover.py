@@ -43,6 +43,9 @@ from panel_rig.recording.writer import (
     PROFILE,
 )
 
+#: what the damaged original of a recovered file is renamed to: `<file>.broken`
+BROKEN_SUFFIX = ".broken"
+
 
 @dataclass
 class RecoverReport:
@@ -212,7 +215,7 @@ def _remove_leftovers(mcap_path: Path) -> list[str]:
     for stale in sorted(mcap_path.parent.glob(mcap_path.name + ".recovering*")):
         stale.unlink()
         notes.append(f"removed {stale.name}, the partial output of an interrupted recover")
-    for link in sorted(mcap_path.parent.glob(mcap_path.name + ".broken*")):
+    for link in sorted(mcap_path.parent.glob(mcap_path.name + BROKEN_SUFFIX + "*")):
         if link.is_file() and os.path.samefile(link, mcap_path):
             link.unlink()
             notes.append(f"removed {link.name}, a second name of {mcap_path.name} left by an interrupted recover")
@@ -287,7 +290,7 @@ def _recover_locked(bag_dir: Path) -> RecoverReport:
     if kept:
         notes.append(f"{', '.join(kept)} kept from the previous {METADATA_FILE} (the recovered part of "
                      f"{mcap_path.name} does not hold {'it' if len(kept) == 1 else 'them'})")
-    broken = _free_name(mcap_path.with_name(mcap_path.name + ".broken"))
+    broken = _free_name(mcap_path.with_name(mcap_path.name + BROKEN_SUFFIX))
     with signals_deferred():  # the original under its new name, the recovered file in its place, metadata.yaml
         _put_in_place(tmp, mcap_path, broken)
         write_metadata(bag_dir, summary)

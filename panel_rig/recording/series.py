@@ -107,7 +107,14 @@ def _checked_topics(bag_dir: Path, counts: dict[str, int]) -> tuple[dict[str, st
     """(topics, refused commands) of an intact bag's message counts; RecordingError for a bag with no messages or
     no tip topic."""
     topics = _topics(list(counts))
-    if not any(counts.values()):  # a node stopped before its first step (a fast node waits for its first command)
+    if not any(counts.values()):
+        from panel_rig.recording.recover import BROKEN_SUFFIX
+
+        damaged = sorted(Path(bag_dir).glob(f"*.mcap{BROKEN_SUFFIX}*"))
+        if damaged:  # recovered from a file cut short: 'the rig stopped' was not what happened
+            raise RecordingError(f"{bag_dir} holds no messages: `bag recover` found none it could read in the "
+                                 f"damaged original (kept as {damaged[0].name})")
+        # a node stopped before its first step (a fast node waits for its first command)
         raise RecordingError(f"{bag_dir} holds no messages: the rig stopped before it ran a step")
     if "tip_displacement" not in topics:
         raise RecordingError(f"{bag_dir} has no tip_displacement topic: not a rig recording")
