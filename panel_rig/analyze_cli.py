@@ -53,6 +53,7 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
                           control_timeout_s=control_timeout_s(rec.parameters))
     result: dict[str, Any] = {
         "bag": str(rec.bag_dir), "panel_length_m": rec.panel_length_m, "panel_length_source": rec.length_source,
+        "missing_parameters": missing_parameters(rec.parameters),
         "variant": rec.parameters.get("model.variant", rec.parameters.get("variant")),
         "refused_commands": rec.refused_commands, **core,
         "aborts": [{"time_s": t, "reason": reason} for t, reason in rec.aborts],
@@ -72,6 +73,16 @@ def analyze_bag(bag_dir: Any, plots_dir: Any = None, rerun_path: Any = None, cri
     result["rerun"] = (_write_rerun(rec, Path(rerun_path), result, ft_points, ft_times) if rerun_path is not None
                        else None)
     return result
+
+
+def missing_parameters(parameters: dict[str, Any]) -> list[str]:
+    """The physics parameters (config.SCHEMA) a recording's parameter record lacks: their defaults are used for
+    the analysis. A bag of an older version, or a damaged record: the MCAP's metadata record carries no checksum,
+    and one flipped bit turned `panel.length_m` into `panel*length_m`, read as "L = 0.27 m (default)" without a
+    word. Empty when the bag has no parameter record at all (the length line says "default" then)."""
+    from panel_rig.config import SCHEMA
+
+    return sorted(set(SCHEMA) - set(parameters)) if parameters else []
 
 
 #: a plateau whose envelope stays below this many times the tip sensor's noise (w/L) is "quiet": it did not move
@@ -320,6 +331,10 @@ def format_table(result: dict[str, Any]) -> str:
             f"{'rate_1/s':>8} " + ("loop   " if loops else "") + "status")
     lines = [f"{result['bag']}: {result['duration_s']:.1f} s, {result['samples']} samples, "
              f"L = {result['panel_length_m']:g} m ({result['panel_length_source']})"]
+    missing = result.get("missing_parameters") or []
+    if missing:
+        lines.append(f"warning: the recorded parameters lack {', '.join(missing)} (a damaged record, or an older "
+                     "bag): their defaults are used")
     refused = result.get("refused_commands") or {}
     if refused:
         lines.append("commands the rig refused (left out): "

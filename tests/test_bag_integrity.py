@@ -521,3 +521,26 @@ def test_a_bag_recovered_to_nothing_is_not_a_rig_that_never_ran(tmp_path: Path,
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.endswith(f"holds no messages: `bag recover` found none it could read in the damaged original (kept as "
                          f"{MCAP}.broken)"), line
+
+
+def test_a_damaged_parameter_record_is_named_not_silently_defaulted(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """The MCAP's metadata record has no checksum: one flipped bit turned `panel.length_m` into `panel*length_m`,
+    and with metadata.yaml rebuilt from it analyze read "L = 0.27 m (default)" without a word; for another panel
+    w/L would be quietly wrong. The parameters it lacks are now named."""
+    bag, path = _copy(tmp_path)
+    data = bytearray(path.read_bytes())
+    at = data.find(b"panel.length_m")
+    data[at + len("panel")] ^= 0x04  # '.' -> '*'
+    path.write_bytes(bytes(data))
+    (bag / "metadata.yaml").unlink()
+    assert main_bag_recover(str(bag)) == 0
+    capsys.readouterr()
+    assert analyze_main([str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: the recorded parameters lack panel.length_m (a damaged record, or an older bag)" in out
+    intact, _ = _copy(tmp_path, "intact")
+    assert analyze_main([str(intact), "--json"]) == 0  # nothing lacking
+    import json
+
+    assert json.loads(capsys.readouterr().out)["missing_parameters"] == []
