@@ -170,6 +170,8 @@ def model_flutter_speed(model: AeroelasticModel, aero: str = "rom", rom_modes: i
             def zeta(x: float, i: int = mode) -> float:
                 return float(pole_damping_ratio(ModalTracker(model, aero, rom_modes).poles(x))[i])
 
+            if zeta(u_prev) <= 0:  # undamped in still air (structure.damping_ratio 0): 0 or a round-off below it,
+                return u_prev, mode + 1  # no sign change for Brent (it raised "f(a) and f(b) must have ...")
             return brentq(zeta, u_prev, u, xtol=1e-6), mode + 1
         u_prev = u
     return None
