@@ -712,6 +712,25 @@ def test_instantaneous_airspeed_steps_are_separate_plateaus() -> None:
         (0.0, 9.998), (10.0, 19.998), (20.0, 29.998), (30.0, 44.998)]
 
 
+def test_a_step_smaller_than_the_tunnel_s_lag_still_separates_plateaus() -> None:
+    """The flutter test's capped step from 9.222 to 9.337 m/s (0.115 m/s, the tunnel's 1 s lag): every 1 s window
+    stayed within the 0.05 m/s tolerance, the two levels made one run, and only the 9.337 m/s part was kept: the
+    whole 9.222 m/s plateau (410 s of a real test) was missing from analyze's table. The set-point commands cut."""
+    from panel_rig.analysis.bag_analysis import analyze_series, find_plateaus, setpoint_change_times_s
+
+    t = np.arange(0.0, 60.0, 1.0 / 500.0)
+    u = np.where(t < 30.0, 9.222, 9.337 - 0.115 * np.exp(-np.clip(t - 30.0, 0.0, None) / 1.0))
+    cmds = [(0.0, 9.222), (20.0, 9.222), (30.0, 9.337)]  # a repeat of a set-point is no change
+    assert setpoint_change_times_s(cmds) == [0.0, 30.0]
+    assert len(find_plateaus(t, u)) == 1  # the steady windows alone
+    ranges = find_plateaus(t, u, setpoint_changes_s=setpoint_change_times_s(cmds))
+    assert [round(float(np.median(u[i0:i1])), 3) for i0, i1 in ranges] == [9.222, 9.337]
+    assert round(t[ranges[0][1] - 1], 3) == 29.998 and 30.0 < t[ranges[1][0]] < 32.0  # the lag's transient left out
+    result = analyze_series(t, 1e-4 * np.sin(2 * np.pi * 23.0 * t), u, {"airspeed_cmd": cmds})
+    assert [p["airspeed_mps"] for p in result["plateaus"]] == [pytest.approx(9.222, abs=1e-9),
+                                                              pytest.approx(9.337, abs=0.005)]  # the lag's tail
+
+
 def test_a_gap_in_the_recording_splits_plateaus_and_is_reported() -> None:
     """A recovered bag that lost a chunk (t 12-14 s here): the plateau bridged it, and the gap, counted in the mean
     sample interval, changed every window of the analysis, far from the gap too."""

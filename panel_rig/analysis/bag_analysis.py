@@ -143,8 +143,22 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
 
 
-def find_plateaus(t_s: np.ndarray, airspeed_mps: np.ndarray, crit: Criteria = Criteria()) -> list[tuple[int, int]]:
-    """[start, end) sample ranges of airspeed plateaus (see the module docstring)."""
+def setpoint_change_times_s(airspeed_cmds: list[tuple[float, float]], crit: Criteria = Criteria()) -> list[float]:
+    """The times (s) of the recorded `airspeed_cmd`s (t_s, value) that change the set-point by more than tol_mps."""
+    out, last = [], None
+    for t, v in sorted(airspeed_cmds):
+        if last is None or abs(v - last) > crit.tol_mps:
+            out.append(t)
+        last = v
+    return out
+
+
+def find_plateaus(t_s: np.ndarray, airspeed_mps: np.ndarray, crit: Criteria = Criteria(),
+                  setpoint_changes_s: Sequence[float] = ()) -> list[tuple[int, int]]:
+    """[start, end) sample ranges of airspeed plateaus (see the module docstring); none spans one of the
+    ``setpoint_changes_s`` (:func:`setpoint_change_times_s`): a step smaller than the tunnel's lag lets the steady
+    windows run on across it (the flutter test's capped 0.115 m/s step from 9.222 to 9.337 m/s made one run of two
+    plateaus, and only the second was kept)."""
     n = t_s.size
     dt = mean_dt(t_s) or 1.0
     n_w = max(2, int(round(crit.window_s / dt)))
@@ -157,6 +171,8 @@ def find_plateaus(t_s: np.ndarray, airspeed_mps: np.ndarray, crit: Criteria = Cr
     # a plateau never spans a gap in the recording nor a step of the airspeed between two samples: steady windows
     # on both sides of an instantaneous step (tunnel.time_constant_s = 0) joined two plateaus into one run
     breaks = gap_mask(t_s) | (np.abs(np.diff(u)) > crit.tol_mps)
+    at = np.searchsorted(t_s, np.asarray(setpoint_changes_s, float), side="left")  # the first sample of the new one
+    breaks[at[(at >= 1) & (at < n)] - 1] = True
     out = []
     for r0, r1 in _runs(steady):
         cuts = [r0, *(r0 + 1 + np.flatnonzero(breaks[r0:r1 - 1])).tolist(), r1]
@@ -405,8 +421,9 @@ def analyze_series(t_s: np.ndarray, tip_w_over_L: np.ndarray, airspeed_mps: np.n
     """Plateaus (numbered from 1), their metrics and the onset estimates of one run's series (open and closed loop);
     ``abort_times_s``: when the rig aborted (a plateau that ends within ABORT_END_S of one ended by it);
     ``control_timeout_s``: the rig's control watchdog (:func:`control_spans`)."""
-    ranges = cut_at_setpoint_changes(t_s, airspeed_mps, commands.get("airspeed_cmd", []),
-                                     find_plateaus(t_s, airspeed_mps, crit), crit)
+    cmds = commands.get("airspeed_cmd", [])
+    ranges = cut_at_setpoint_changes(t_s, airspeed_mps, cmds,
+                                     find_plateaus(t_s, airspeed_mps, crit, setpoint_change_times_s(cmds, crit)), crit)
     parts = cut_at_loop_switches(t_s, ranges, control_spans(commands, control_timeout_s), crit)
     plateaus = [analyze_plateau(t_s, tip_w_over_L, airspeed_mps, commands, i0, i1, crit,
                                 aborted=any(t_s[i0] <= a <= t_s[i1 - 1] + ABORT_END_S for a in abort_times_s))
