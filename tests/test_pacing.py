@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from panel_rig.ros.pacing import PublishGrid, step_counts
 
@@ -54,3 +55,25 @@ def test_the_grid_does_not_drift_over_a_day():
     times = grid.tick(anchor + day - 1e-6, anchor + day + 0.5 * PERIOD_S)
     assert times == [anchor + round(day / PERIOD_S) * PERIOD_S]
     assert abs(times[0] - (anchor + day)) < 1e-10
+
+
+@pytest.mark.parametrize("recording_uncapped", [True, False])
+def test_an_unattended_recording_fast_node_says_what_its_bag_will_cost(monkeypatch, recording_uncapped):
+    """A fast node that records, uncapped, and gets no client starts after 60 s and writes ~2 GB of bag a minute (a
+    review's wrote 24 GB in 10 min); the start warning said only "simulated time starts anyway"."""
+    import types
+
+    from panel_rig.ros import pacing
+
+    said: list[str] = []
+    clock = [0.0]
+    monkeypatch.setattr(pacing, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
+    holds = pacing.ClientHolds(types.SimpleNamespace(time_s=0.0), types.SimpleNamespace(warning=said.append),
+                               wait_for_command=True, flutter_hold=False, flutter_monitor=None,
+                               recording_uncapped=recording_uncapped)
+    assert holds.waiting_for_command() and said == []
+    clock[0] = pacing.HOLD_TIMEOUT_S + 1.0
+    assert not holds.waiting_for_command()
+    (line,) = said
+    assert line.startswith("no command for 60 s (wall): simulated time starts anyway")
+    assert ("cap it with fast_max_realtime_factor" in line) == recording_uncapped

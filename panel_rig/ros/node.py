@@ -327,7 +327,8 @@ class RigNode(Node):
                                                        repeats=p["flutter_test.repeats"])
             self.rig.sinks.append(self._flutter_monitor)
         self.holds = ClientHolds(self.rig, self.get_logger(), wait_for_command=p["fast_wait_for_command"] and p["fast"],
-                                 flutter_hold=p["flutter_test.hold"] and p["fast"], flutter_monitor=self._flutter_monitor)
+                                 flutter_hold=p["flutter_test.hold"] and p["fast"], flutter_monitor=self._flutter_monitor,
+                                 recording_uncapped=p["record"] and not p["fast_max_realtime_factor"])
         # asked for and not possible: the node does not start (a run believed recorded must not go unrecorded)
         self._rerun: Any = None
         if p["rerun"] != "none":

@@ -62,8 +62,9 @@ class ClientHolds:
     """The fast mode's holds of simulated time for a client (``rig``: its time in the log lines)."""
 
     def __init__(self, rig: Any, logger: Any, *, wait_for_command: bool, flutter_hold: bool,
-                 flutter_monitor: Any | None) -> None:
+                 flutter_monitor: Any | None, recording_uncapped: bool = False) -> None:
         self._rig, self._log, self._monitor = rig, logger, flutter_monitor
+        self._recording_uncapped = recording_uncapped  # record on, fast_max_realtime_factor 0: the bag races
         self._flutter_hold = bool(flutter_hold and flutter_monitor is not None)
         # fast_wait_for_command: released by the first command, or after HOLD_TIMEOUT_S of wall time (logged)
         self._start_hold_until: float | None = time.monotonic() + HOLD_TIMEOUT_S if wait_for_command else None
@@ -76,7 +77,10 @@ class ClientHolds:
             return False
         if time.monotonic() > self._start_hold_until:
             self._start_hold_until = None
-            self._log.warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway")
+            self._log.warning(f"no command for {HOLD_TIMEOUT_S:g} s (wall): simulated time starts anyway" + (
+                "; the fast node records as fast as it runs (2.4 GB of bag a minute at the default rates here: a "
+                "review's unattended node wrote 24 GB in 10 min): stop it, or cap it with fast_max_realtime_factor"
+                if self._recording_uncapped else ""))
             return False
         return True
 
